@@ -1,0 +1,228 @@
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from jax.test_util import check_grads
+
+from conftest import TOL, random_unit_quaternions
+from jaxsim import curves, ik
+from jaxsim.ik import _fabrik, _joints
+
+SOLVERS = {"ccd": ik.ccd, "fabrik": ik.fabrik}
+
+
+def bone_vectors(positions):
+    return np.diff(np.asarray(positions, np.float64), axis=-2)
+
+
+@pytest.mark.parametrize("solver", ["ccd", "fabrik"])
+def test_reachable_target_converges(solver, dtype):
+    arm = ik.Chain(np.asarray(ik.lab_arm().offsets, dtype))
+    res = SOLVERS[solver](arm, np.array([0.6, 0.3, 0.4], dtype))
+    assert bool(res.converged) and bool(res.reachable)
+    assert 0 < int(res.iterations) < 100
+    assert float(res.error) <= 1e-4
+    np.testing.assert_allclose(res.positions, ik.fk(arm, res.rotations).positions, atol=TOL[dtype])
+    assert res.trace.shape == (100,)
+    it = int(res.iterations)
+    assert float(res.trace[it - 1]) <= 1e-4 and np.all(np.asarray(res.trace[it:]) == res.trace[it - 1])
+
+
+@pytest.mark.parametrize("solver, iters", [("fabrik", 100), ("ccd", 3000)])
+def test_unreachable_target_stretches_along_ray(solver, iters, dtype):
+    arm = ik.Chain(np.asarray(ik.lab_arm().offsets, dtype))
+    target = np.array([2.5, 1.0, -2.0])
+    res = SOLVERS[solver](arm, target.astype(dtype), max_iters=iters, tol=1e-4)
+    root = np.array([0, 1.7, 0])
+    dist = np.linalg.norm(target - root)
+    assert not bool(res.converged) and not bool(res.reachable)
+    assert abs(float(res.error) - (dist - 2.6)) <= 1e-4
+    ray = (target - root) / dist
+    bones = bone_vectors(res.positions)
+    cosang = bones @ ray / np.linalg.norm(bones, axis=-1)
+    assert np.all(np.arccos(np.clip(cosang, -1, 1)) <= 1e-3)
+    if solver == "fabrik":
+        assert int(res.iterations) == 1
+
+
+def test_fabrik_rotations_reproduce_positions(dtype):
+    """The rotation rebuild: FK of the rebuilt rotations gives FABRIK's own positions."""
+    rng = np.random.default_rng(0)
+    for J in (3, 6, 10):
+        chain = ik.Chain(rng.normal(size=(J, 3)).astype(dtype))
+        local0 = random_unit_quaternions(rng, (J,)).astype(dtype)
+        P0 = ik.fk(chain, local0).positions
+        target = jnp.asarray(P0[-1] + 0.3 * rng.normal(size=3).astype(dtype))
+        lengths = chain.lengths[:, None]
+        P = list(jnp.asarray(P0))
+        for _ in range(3):
+            P = _fabrik.fabrik_sweep(P, target, chain.root, lengths, unroll=True)
+        P = _joints.stack(P)
+        local = _fabrik.rotations_from_positions(chain.offsets, jnp.asarray(local0), P, unroll=True)
+        np.testing.assert_allclose(ik.fk(chain, local).positions, P, atol=TOL[dtype] * np.abs(P).max() * 2)
+
+
+def test_lab_curves_float64_every_frame_converges():
+    arm = ik.lab_arm()
+    assert arm.offsets.dtype == np.float64
+    for make in (curves.circle, curves.cardioid):
+        targets = make()
+        assert targets.shape == (150, 3) and np.all(targets[:, 1] == 0)
+        stats = {}
+        for solver in ("ccd", "fabrik"):
+            res = ik.track(arm, targets, solver=solver, max_iters=100, tol=1e-4)
+            assert res.error.shape == (150,) and res.trace.shape == (150, 100)
+            assert bool(jnp.all(res.converged)), solver
+            stats[solver] = float(jnp.mean(res.iterations))
+        assert stats["fabrik"] < stats["ccd"]
+
+
+def test_track_max_step_angle_bounds_jitter(dtype):
+    arm = ik.Chain(np.asarray(ik.lab_arm().offsets, dtype))
+    targets = curves.cardioid()
+    free = ik.track(arm, targets, solver="fabrik")
+    bound = 0.05
+    clamped = ik.track(arm, targets, solver="fabrik", max_step_angle=bound)
+    j_free = ik.jitter(free.rotations, arm.rest_rotations())
+    j_clamped = ik.jitter(clamped.rotations, arm.rest_rotations())
+    assert float(jnp.max(j_free)) > bound  # the bound is active somewhere
+    assert float(jnp.max(j_clamped)) <= bound * (1 + 1e-3) + 10 * TOL[dtype]
+    np.testing.assert_allclose(clamped.positions, ik.fk(arm, clamped.rotations).positions, atol=10 * TOL[dtype])
+
+
+@pytest.mark.parametrize("solver", ["ccd", "fabrik"])
+def test_jit_matches_eager_and_vmap_matches_loop(solver):
+    arm = ik.lab_arm()
+    rng = np.random.default_rng(3)
+    targets = rng.uniform(-1, 1, size=(5, 3))
+    f = SOLVERS[solver]
+    jitted = jax.jit(lambda t: f(arm, t, max_iters=12).positions)
+    with jax.disable_jit():
+        eager = np.stack([f(arm, t, max_iters=12).positions for t in targets[:2]])
+    np.testing.assert_allclose(np.stack([jitted(t) for t in targets[:2]]), eager, atol=1e-10)
+    loop = np.stack([f(arm, t, max_iters=12).positions for t in targets])
+    vm = jax.vmap(lambda t: f(arm, t, max_iters=12).positions)(targets)
+    np.testing.assert_allclose(vm, loop, atol=1e-10)
+    batched = ik.solve(arm, targets.reshape(5, 1, 3), solver=solver, max_iters=12)
+    assert batched.positions.shape == (5, 1, 5, 3)
+    np.testing.assert_allclose(batched.positions[:, 0], loop, atol=1e-10)
+    # vmap over initial rotations as well
+    rots = random_unit_quaternions(rng, (5, 5))
+    vm2 = jax.vmap(lambda t, r: f(arm, t, r, max_iters=12).positions)(targets, rots)
+    loop2 = np.stack([f(arm, t, r, max_iters=12).positions for t, r in zip(targets, rots)])
+    np.testing.assert_allclose(vm2, loop2, atol=1e-10)
+
+
+def test_unrolled_equals_rolled():
+    chain = ik.straight_chain(np.linspace(0.5, 1.5, 8), direction=(0, -1, 0))
+    t = np.array([1.0, -2.0, 2.0])
+    for f in SOLVERS.values():
+        a, b = f(chain, t, unroll=True, max_iters=30), f(chain, t, unroll=False, max_iters=30)
+        np.testing.assert_allclose(a.positions, b.positions, atol=1e-9)
+        assert int(a.iterations) == int(b.iterations)
+
+
+# ---- hypothesis properties (float64; six-joint chains so one compilation serves all) ----
+
+chains6 = st.lists(st.floats(0.2, 2.0), min_size=5, max_size=5)
+directions = st.tuples(st.floats(-1, 1), st.floats(-1, 1), st.floats(-1, 1)).filter(
+    lambda v: np.linalg.norm(v) > 0.1
+)
+
+
+@settings(max_examples=30, deadline=None)
+@given(lengths=chains6, direction=directions, frac=st.floats(0.05, 0.95), solver=st.sampled_from(["ccd", "fabrik"]))
+def test_property_lengths_root_and_convergence(lengths, direction, frac, solver):
+    lengths = np.asarray(lengths)
+    # a chain with a bend so the rest pose is generic
+    offs = np.zeros((6, 3))
+    offs[0] = [0.1, 0.2, 0.3]
+    for i, L in enumerate(lengths):
+        a = 0.4 * (i + 1)
+        offs[i + 1] = L * np.array([np.cos(a), np.sin(a), 0.3])
+        offs[i + 1] *= L / np.linalg.norm(offs[i + 1])
+    chain = ik.Chain(offs)
+    d = np.asarray(direction) / np.linalg.norm(direction)
+    # reachable: inside the annulus [max(0, 2*max - sum), sum]
+    inner = max(0.0, 2 * lengths.max() - lengths.sum())
+    r = inner + frac * (lengths.sum() - inner)
+    target = offs[0] + r * d
+    res = SOLVERS[solver](chain, target, max_iters=2000 if solver == "ccd" else 500, tol=1e-6)
+    np.testing.assert_allclose(np.linalg.norm(bone_vectors(res.positions), axis=-1), lengths, rtol=1e-9)
+    np.testing.assert_allclose(res.positions[0], offs[0], atol=1e-12)
+    assert bool(res.converged), (float(res.error), int(res.iterations))
+
+
+# ---- gradients ----
+
+@pytest.mark.parametrize("solver", ["ccd", "fabrik"])
+def test_check_grads_end_position(solver):
+    arm = ik.lab_arm()
+    f = SOLVERS[solver]
+    rest = np.asarray(random_unit_quaternions(np.random.default_rng(5), (5,)) * 0.05 + np.array([1.0, 0, 0, 0]))
+    rest = rest / np.linalg.norm(rest, axis=-1, keepdims=True)
+
+    def end(target, offsets, rots):
+        return f(ik.Chain(offsets), target, rots, max_iters=6, tol=0.0).positions[-1]
+
+    args = (jnp.array([0.5, 0.2, 0.3]), arm.offsets, jnp.asarray(rest))
+    check_grads(end, args, order=1, modes=("fwd", "rev"), atol=1e-5, rtol=1e-5, eps=1e-6)
+    J = jax.jacfwd(end)(*args)
+    assert np.all(np.isfinite(J))
+
+
+# ---- singular and extreme cases: finite results and gradients ----
+
+def singular_cases():
+    arm = ik.lab_arm()
+    straight = ik.straight_chain([1.0, 1.0, 1.0], direction=(0, 0, 1))
+    extreme = ik.straight_chain([1e-3, 1e3, 1e-3, 1.0], direction=(1, 0, 0))
+    return {
+        "target_at_root": (arm, np.array([0, 1.7, 0.0])),
+        "straight_line_reachable": (straight, np.array([0, 0, 1.5])),
+        "straight_line_behind": (straight, np.array([0, 0, -1.5])),
+        "straight_line_unreachable": (straight, np.array([0, 0, 5.0])),
+        "target_at_end": (arm, np.array([0, -0.9, 0.0])),
+        "two_joints": (ik.straight_chain([1.0]), np.array([0.3, 0.4, 0.0])),
+        "sixty_four_joints": (ik.straight_chain(np.full(63, 0.1), direction=(0, 1, 0)), np.array([1.0, 2.0, 0.5])),
+        "extreme_lengths": (extreme, np.array([500.0, 300.0, 10.0])),
+    }
+
+
+@pytest.mark.parametrize("case", list(singular_cases()))
+@pytest.mark.parametrize("solver", ["ccd", "fabrik"])
+def test_singular_cases_no_nan(case, solver, dtype):
+    chain, target = singular_cases()[case]
+    chain = ik.Chain(np.asarray(chain.offsets, dtype))
+    f = SOLVERS[solver]
+    res = f(chain, target.astype(dtype), max_iters=20)
+    for leaf in jax.tree_util.tree_leaves(res):
+        assert np.all(np.isfinite(np.asarray(leaf, np.float64))), case
+    grads = jax.grad(lambda t, o: jnp.sum(f(ik.Chain(o), t, max_iters=20).positions[-1]), argnums=(0, 1))(
+        jnp.asarray(target, dtype), chain.offsets
+    )
+    for g in grads:
+        assert np.all(np.isfinite(g)), case
+    if case in ("straight_line_reachable", "straight_line_behind", "target_at_root", "target_at_end") and dtype == np.float64:
+        res = f(chain, target, max_iters=500)
+        assert bool(res.converged), (case, float(res.error))
+
+
+def test_bad_inputs_raise():
+    arm = ik.lab_arm()
+    with pytest.raises(ValueError, match="target"):
+        ik.fabrik(arm, [1.0, 2.0])
+    with pytest.raises(ValueError, match="finite"):
+        ik.ccd(arm, [np.nan, 0, 0])
+    with pytest.raises(ValueError, match="rotations"):
+        ik.ccd(arm, [0, 0, 0], np.ones((4, 4)))
+    with pytest.raises(ValueError, match="zero quaternion"):
+        ik.ccd(arm, [0, 0, 0], np.zeros((5, 4)))
+    with pytest.raises(ValueError, match="max_iters"):
+        ik.fabrik(arm, [0, 0, 0], max_iters=0)
+    with pytest.raises(ValueError, match="tol"):
+        ik.fabrik(arm, [0, 0, 0], tol=-1.0)
+    with pytest.raises(ValueError, match="solver"):
+        ik.solve(arm, np.zeros((3, 3)), solver="jacobian")
