@@ -54,14 +54,14 @@ def test_fabrik_rotations_reproduce_positions(dtype):
         chain = ik.Chain(rng.normal(size=(J, 3)).astype(dtype))
         local0 = random_unit_quaternions(rng, (J,)).astype(dtype)
         P0 = ik.fk(chain, local0).positions
-        target = jnp.asarray(P0[-1] + 0.3 * rng.normal(size=3).astype(dtype))
-        lengths = chain.lengths[:, None]
-        P = list(jnp.asarray(P0))
+        target = tuple(jnp.asarray(P0[-1] + 0.3 * rng.normal(size=3).astype(dtype)))
+        P = [tuple(p) for p in jnp.asarray(P0)]
         for _ in range(3):
-            P = _fabrik.fabrik_sweep(P, target, chain.root, lengths, unroll=True)
+            P = _fabrik.fabrik_sweep(P, target, tuple(chain.root), chain.lengths, tuple(jnp.array([0, 0, 1], dtype)), unroll=True)
+        L0 = [tuple(q) for q in jnp.asarray(local0)]
+        local = _joints.stack(_fabrik.rotations_from_positions(chain.offsets, L0, P, (), unroll=True))
         P = _joints.stack(P)
-        local = _fabrik.rotations_from_positions(chain.offsets, jnp.asarray(local0), P, unroll=True)
-        np.testing.assert_allclose(ik.fk(chain, local).positions, P, atol=TOL[dtype] * np.abs(P).max() * 2)
+        np.testing.assert_allclose(ik.fk(chain, local).positions, P, atol=TOL[dtype] * float(np.abs(P).max()) * 2)
 
 
 def test_lab_curves_float64_every_frame_converges():

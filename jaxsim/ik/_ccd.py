@@ -13,40 +13,37 @@ from __future__ import annotations
 import jax.numpy as jnp
 
 from . import _joints, _quat
-from ._fk import fk_component_first
+from ._fk import fk_joints
 
 
-def ccd_sweep(offsets, target, local, positions, frames, *, unroll: bool):
-    """One CCD sweep on component-first arrays.
+def ccd_sweep(offsets, target, local, positions, frames, batch_shape, *, unroll: bool):
+    """One CCD sweep on per-joint containers.
 
     Args:
       offsets: ``(J, 3)``.
-      target: ``(3, *B)``.
-      local: ``(J, 4, *B)`` local rotations at the start of the sweep.
-      positions, frames: ``(J, 3, *B)``, ``(J, 4, *B)``: FK of ``local``.
+      target: vector tuple over ``batch_shape``.
+      local, positions, frames: containers of local rotations and their FK.
 
     Returns:
       ``(local, positions, frames)`` after the sweep, the last two by FK of the new
-      local rotations, so the error seen by the loop is that of the returned pose.
+      local rotations, so the error the loop sees is that of the returned pose.
     """
-    J = local.shape[0]
-    P, G = _joints.split(positions, unroll), _joints.split(frames, unroll)
-    L = _joints.split(local, unroll)
-    ident = _quat.identity(target.shape[1:], local.dtype)
+    J = offsets.shape[0]
+    ident = _quat.identity(batch_shape, offsets.dtype)
 
     def body(i, c):
         L, end = c
-        p = _joints.get(P, i)
-        r = _quat.from_two_vectors(end - p, target - p)
-        end = p + _quat.rotate(r, end - p)
+        p = _joints.get(positions, i)
+        r = _quat.from_two_vectors(_quat.sub(end, p), _quat.sub(target, p))
+        end = _quat.add(p, _quat.rotate(r, _quat.sub(end, p)))
         if unroll:
-            g_parent = ident if i == 0 else G[i - 1]
+            g_parent = ident if i == 0 else frames[i - 1]
         else:
-            g_parent = jnp.where(i > 0, G[jnp.maximum(i - 1, 0)], ident)
-        L = _joints.put(L, i, _quat.mul(_quat.conj(g_parent), _quat.mul(r, _joints.get(G, i))))
+            g_parent = _quat.where(i > 0, _joints.get(frames, jnp.maximum(i - 1, 0)), ident)
+        g = _quat.renormalize(_quat.mul(r, _joints.get(frames, i)))
+        L = _joints.put(L, i, _quat.mul(_quat.conj(g_parent), g))
         return L, end
 
-    L, _ = _joints.loop(0, J - 1, body, (L, _joints.get(P, J - 1)), unroll=unroll, reverse=True)
-    L = _quat.renormalize(_joints.stack(L), axis=1)
-    P, G = fk_component_first(offsets, L, unroll=unroll)
+    L, _ = _joints.loop(0, J - 1, body, (local, _joints.get(positions, J - 1)), unroll=unroll, reverse=True)
+    P, G = fk_joints(offsets, L, batch_shape, unroll=unroll)
     return L, P, G

@@ -8,59 +8,50 @@ paper's straight line towards the target (one sweep).
 
 from __future__ import annotations
 
-import jax.numpy as jnp
-
 from . import _joints, _quat
-from ._fk import fk_component_first
 
 
-def fabrik_sweep(positions, target, root, lengths, *, unroll: bool):
+def fabrik_sweep(positions, target, root, lengths, fallback, *, unroll: bool):
     """One backward + forward FABRIK pass.
 
     Args:
-      positions: ``(J, 3, *B)`` joint positions (stacked or per-joint list).
-      target, root: ``(3, *B)`` (root may broadcast).
-      lengths: ``(J-1, 1, ...)`` bone lengths, broadcastable per joint.
+      positions: container of ``J`` joint positions (vector tuples).
+      target, root: vector tuples (root may broadcast).
+      lengths: ``(J-1,)`` bone lengths.
+      fallback: unit vector tuple used where two joints coincide.
 
     Returns:
       New positions in the same container type.
     """
-    P = positions
-    J = len(P) if isinstance(P, list) else P.shape[0]
+    J = lengths.shape[0] + 1
 
     def backward(i, P):
         child = _joints.get(P, i + 1)
-        d = _joints.get(P, i) - child
-        # A joint sitting exactly on its child keeps the child's old direction to it.
-        u = _quat.normalize(d, _quat.perpendicular(target - root))
-        return _joints.put(P, i, child + lengths[i] * u)
+        u = _quat.normalize(_quat.sub(_joints.get(P, i), child), fallback)
+        return _joints.put(P, i, _quat.add(child, _quat.scale(lengths[i], u)))
 
     def forward(i, P):
         parent = _joints.get(P, i - 1)
-        d = _joints.get(P, i) - parent
-        u = _quat.normalize(d, _quat.perpendicular(target - root))
-        return _joints.put(P, i, parent + lengths[i - 1] * u)
+        u = _quat.normalize(_quat.sub(_joints.get(P, i), parent), fallback)
+        return _joints.put(P, i, _quat.add(parent, _quat.scale(lengths[i - 1], u)))
 
-    P = _joints.put(P, J - 1, jnp.broadcast_to(target, _joints.get(P, J - 1).shape))
+    P = _joints.put(positions, J - 1, target)
     P = _joints.loop(0, J - 1, backward, P, unroll=unroll, reverse=True)
-    P = _joints.put(P, 0, jnp.broadcast_to(root, _joints.get(P, 0).shape))
+    P = _joints.put(P, 0, root)
     return _joints.loop(1, J, forward, P, unroll=unroll)
 
 
-def straight_towards(root, target, lengths, num_joints: int, fallback):
-    """Joint positions of the chain stretched along the ray from ``root`` to ``target``.
-
-    Returns a per-joint list of ``(3, *B)`` arrays.
-    """
-    ray = _quat.normalize(target - root, fallback)
-    out, acc = [jnp.broadcast_to(root, ray.shape)], 0.0
-    for i in range(num_joints - 1):
+def straight_towards(root, target, lengths, fallback):
+    """Joint positions (a list of vector tuples) of the chain stretched from ``root`` towards ``target``."""
+    ray = _quat.normalize(_quat.sub(target, root), fallback)
+    out, acc = [root], 0.0
+    for i in range(lengths.shape[0]):
         acc = acc + lengths[i]
-        out.append(root + acc * ray)
+        out.append(_quat.add(root, _quat.scale(acc, ray)))
     return out
 
 
-def rotations_from_positions(offsets, local0, positions, *, unroll: bool):
+def rotations_from_positions(offsets, local0, positions, batch_shape, *, unroll: bool):
     """Local rotations whose FK reproduces ``positions``, changed minimally from ``local0``.
 
     Walks down the chain: joint ``i``'s candidate global frame is its parent's *new*
@@ -70,27 +61,23 @@ def rotations_from_positions(offsets, local0, positions, *, unroll: bool):
 
     Args:
       offsets: ``(J, 3)``.
-      local0: ``(J, 4, *B)`` local rotations the positions were started from.
-      positions: ``(J, 3, *B)`` target joint positions with the chain's bone lengths.
+      local0: container of the ``J`` local rotations the positions were started from.
+      positions: container of ``J`` joint positions with the chain's bone lengths.
 
     Returns:
-      ``(J, 4, *B)`` local rotations.
+      Container of ``J`` local rotations.
     """
-    nb = local0.ndim - 2
-    off = jnp.reshape(offsets, offsets.shape + (1,) * nb).astype(local0.dtype)
-    J = local0.shape[0]
-    L0 = _joints.split(local0, unroll)
-    P = _joints.split(positions, unroll)
-    ident = _quat.identity(local0.shape[2:], local0.dtype)
+    J = offsets.shape[0]
+    ident = _quat.identity(batch_shape, offsets.dtype)
 
     def body(i, c):
         L, g_parent = c
-        g = _quat.mul(g_parent, _joints.get(L0, i))
-        bone_now = _quat.rotate(g, off[i + 1])
-        bone_want = _joints.get(P, i + 1) - _joints.get(P, i)
+        g = _quat.mul(g_parent, _joints.get(local0, i))
+        bone_now = _quat.rotate(g, _quat.unstack(offsets[i + 1]))
+        bone_want = _quat.sub(_joints.get(positions, i + 1), _joints.get(positions, i))
         g = _quat.renormalize(_quat.mul(_quat.from_two_vectors(bone_now, bone_want), g))
         L = _joints.put(L, i, _quat.mul(_quat.conj(g_parent), g))
         return L, g
 
-    L, _ = _joints.loop(0, J - 1, body, (L0, ident), unroll=unroll)
-    return _joints.stack(L)
+    L, _ = _joints.loop(0, J - 1, body, (local0, ident), unroll=unroll)
+    return L

@@ -15,38 +15,37 @@ from . import _joints, _quat
 from ._chain import Chain, Pose
 
 
-def expand(x, nbatch: int):
-    """Append ``nbatch`` singleton axes so ``x`` broadcasts against component-first batches."""
-    return jnp.reshape(x, x.shape + (1,) * nbatch)
-
-
-def fk_component_first(offsets, local, *, unroll: bool):
-    """FK on component-first arrays.
+def fk_joints(offsets, local, batch_shape, *, unroll: bool):
+    """FK on per-joint containers (see ``_joints``).
 
     Args:
       offsets: ``(J, 3)`` chain offsets.
-      local: ``(J, 4, *B)`` local rotations.
-      unroll: unroll the joint loop in Python.
+      local: container of ``J`` local rotations (quaternion tuples over ``batch_shape``).
+      batch_shape: the batch shape ``B`` of every component array.
+      unroll: container kind (list if True, stacked ``(J, C, *B)`` array if False).
 
     Returns:
-      ``positions (J, 3, *B)`` and ``globals (J, 4, *B)``.
+      ``(positions, globals)`` containers of the same kind.
     """
-    nb = local.ndim - 2
-    off = expand(offsets, nb).astype(local.dtype)
-    J = local.shape[0]
-    L = _joints.split(local, unroll)
-    P = _joints.split(jnp.broadcast_to(off, (J, 3) + local.shape[2:]), unroll)
-    G = _joints.put(L, 0, _joints.get(L, 0))
+    J = offsets.shape[0]
+    dtype = offsets.dtype
+    root = tuple(jnp.broadcast_to(c, batch_shape) for c in _quat.unstack(offsets[0]))
+    if unroll:
+        P, G = [root] * J, [local[0]] * J
+    else:
+        P = jnp.zeros((J, 3) + tuple(batch_shape), dtype)
+        P = _joints.put(P, 0, root)
+        G = local
 
     def body(i, c):
         P, G = c
         g_parent = _joints.get(G, i - 1)
-        P = _joints.put(P, i, _joints.get(P, i - 1) + _quat.rotate(g_parent, off[i]))
-        G = _joints.put(G, i, _quat.mul(g_parent, _joints.get(L, i)))
+        p = _quat.add(_joints.get(P, i - 1), _quat.rotate(g_parent, _quat.unstack(offsets[i])))
+        P = _joints.put(P, i, p)
+        G = _joints.put(G, i, _quat.mul(g_parent, _joints.get(local, i)))
         return P, G
 
-    P, G = _joints.loop(1, J, body, (P, G), unroll=unroll)
-    return _joints.stack(P), _joints.stack(G)
+    return _joints.loop(1, J, body, (P, G), unroll=unroll)
 
 
 def fk(chain: Chain, rotations: jax.Array | None = None, *, unroll: bool | None = None) -> Pose:
@@ -67,8 +66,10 @@ def fk(chain: Chain, rotations: jax.Array | None = None, *, unroll: bool | None 
     J = chain.num_joints
     if rotations.shape[-2:] != (J, 4):
         raise ValueError(f"rotations must have shape (..., {J}, 4), got {rotations.shape}")
-    local = jnp.moveaxis(rotations, (-2, -1), (0, 1))
-    P, G = fk_component_first(chain.offsets, local, unroll=_joints.unrolled(J, unroll))
+    unroll = _joints.unrolled(J, unroll)
+    local = _joints.split(jnp.moveaxis(rotations, (-2, -1), (0, 1)), unroll)
+    P, G = fk_joints(chain.offsets, local, rotations.shape[:-2], unroll=unroll)
     return Pose(
-        positions=jnp.moveaxis(P, (0, 1), (-2, -1)), rotations=jnp.moveaxis(G, (0, 1), (-2, -1))
+        positions=jnp.moveaxis(_joints.stack(P), (0, 1), (-2, -1)),
+        rotations=jnp.moveaxis(_joints.stack(G), (0, 1), (-2, -1)),
     )

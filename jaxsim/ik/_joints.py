@@ -1,15 +1,17 @@
 """A loop over joints that is unrolled in Python for short chains and rolled for long ones.
 
-Per-joint state is held either as a Python list of ``(C, *B)`` arrays (unrolled: every
-index is static, so XLA sees one straight-line fusion) or as one stacked ``(J, C, *B)``
-array indexed dynamically inside ``lax.fori_loop`` (rolled: compile time independent of
-``J``).  The same solver body runs on both.
+Per-joint state (vectors or quaternions, see ``_quat``) lives either in a Python list of
+component tuples (unrolled: every index is static and a sweep is straight-line
+elementwise code) or in one stacked ``(J, C, *B)`` array indexed dynamically inside
+``lax.fori_loop`` (rolled: compile time independent of ``J``).  The same solver body
+runs on both through ``get``/``put``/``loop``.
 """
 
 from __future__ import annotations
 
-import jax.numpy as jnp
 from jax import lax
+
+from . import _quat
 
 #: Chains with at most this many joints are unrolled (see ``benchmarks/ik_throughput.py``).
 UNROLL_MAX_JOINTS = 16
@@ -20,25 +22,29 @@ def unrolled(num_joints: int, unroll: bool | None) -> bool:
 
 
 def split(x, unroll: bool):
-    """``(J, C, *B)`` -> per-joint container."""
-    return [x[i] for i in range(x.shape[0])] if unroll else x
+    """``(J, C, *B)`` array -> per-joint container."""
+    return [_quat.unstack(x[i]) for i in range(x.shape[0])] if unroll else x
 
 
 def stack(xs):
-    """Per-joint container -> ``(J, C, *B)``."""
-    return jnp.stack(xs) if isinstance(xs, list) else xs
+    """Per-joint container -> ``(J, C, *B)`` array."""
+    if isinstance(xs, list):
+        return _quat.stack([_quat.stack(v) for v in xs])
+    return xs
 
 
 def get(xs, i):
-    return xs[i]
+    """Joint ``i`` as a component tuple."""
+    return xs[i] if isinstance(xs, list) else _quat.unstack(xs[i])
 
 
 def put(xs, i, v):
+    """Replace joint ``i`` with the component tuple ``v``."""
     if isinstance(xs, list):
         out = list(xs)
         out[i] = v
         return out
-    return xs.at[i].set(v)
+    return xs.at[i].set(_quat.stack(v).astype(xs.dtype))
 
 
 def loop(lo: int, hi: int, body, carry, *, unroll: bool, reverse: bool = False):

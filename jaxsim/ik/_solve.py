@@ -23,7 +23,7 @@ from . import _joints, _quat
 from ._ccd import ccd_sweep
 from ._chain import Chain
 from ._fabrik import fabrik_sweep, rotations_from_positions, straight_towards
-from ._fk import expand, fk_component_first
+from ._fk import fk_joints
 from ._result import IKResult
 
 SOLVERS = ("ccd", "fabrik")
@@ -32,81 +32,80 @@ SOLVERS = ("ccd", "fabrik")
 SYMMETRY_BREAK_ANGLE = 0.1
 
 
-def _norm(v):
-    return _quat.safe_norm(v)
-
-
-def break_symmetry(offsets, local, positions, target, reach, done, *, unroll: bool):
+def break_symmetry(local, positions, frames, target, reach, done, batch_shape):
     """Bend a chain that lies on the line through its root and target.
 
     Neither CCD nor FABRIK can leave that line by itself (every update is a rotation
     about a zero axis, or a move along the line).  Such poses get joint 1 (or the root of
     a one-bone chain) turned by ``SYMMETRY_BREAK_ANGLE`` about an axis perpendicular to
-    the line; other poses are returned unchanged.
-
-    Args:
-      local: ``(J, 4, *B)``; positions: ``(J, 3, *B)`` = FK of ``local``;
-      target: ``(3, *B)``; reach: ``(*B)`` or scalar; done: ``(*B)`` bool.
+    the line; other poses are returned unchanged.  Works on stacked ``(J, C, *B)``
+    arrays ``local``, ``positions``, ``frames``; ``target`` is a vector tuple.
     """
     J = local.shape[0]
-    root = positions[0]
-    chain_dir = _quat.normalize(positions[J - 1] - root, _quat.perpendicular(target - root))
-    ray = _quat.normalize(target - root, chain_dir)
-    rel = jnp.swapaxes(positions - root, 0, 1)  # (3, J, *B)
-    off_line = jnp.max(_norm(_quat.cross(rel, ray[:, None])), axis=0)
+    root = _quat.unstack(positions[0])
+    to_target = _quat.sub(target, root)
+    chain_dir = _quat.normalize(_quat.sub(_quat.unstack(positions[J - 1]), root), _quat.perpendicular(to_target))
+    ray = _quat.normalize(to_target, chain_dir)
+    rel = _quat.unstack(positions - positions[:1], axis=1)  # tuple of (J, *B)
+    ray_j = tuple(c[None] for c in ray)
+    off_line = jnp.max(_quat.safe_norm(_quat.cross(rel, ray_j)), axis=0)
     need = (off_line <= 1e-6 * reach) & ~done
     m = 1 if J > 2 else 0
-    half = float(0.5 * SYMMETRY_BREAK_ANGLE)
-    r = jnp.concatenate([jnp.full_like(ray[:1], np.cos(half)), float(np.sin(half)) * _quat.perpendicular(ray)])
-    if m > 0:
-        _, G = fk_component_first(offsets, local, unroll=unroll)
-        g_parent = G[m - 1]
-    else:
-        g_parent = _quat.identity(ray.shape[1:], local.dtype)
-    lm = _quat.mul(_quat.conj(g_parent), _quat.mul(r, _quat.mul(g_parent, local[m])))
-    return jnp.where(need, local.at[m].set(lm), local)
+    half = 0.5 * SYMMETRY_BREAK_ANGLE
+    r = (jnp.full(batch_shape, np.cos(half), local.dtype), *_quat.scale(float(np.sin(half)), _quat.perpendicular(ray)))
+    g_parent = _quat.unstack(frames[m - 1]) if m > 0 else _quat.identity(batch_shape, local.dtype)
+    lm = _quat.mul(_quat.conj(g_parent), _quat.mul(r, _quat.mul(g_parent, _quat.unstack(local[m]))))
+    return jnp.where(need, local.at[m].set(_quat.stack(lm)), local)
 
 
-def _where_tree(c, a, b):
-    return jax.tree_util.tree_map(lambda x, y: jnp.where(c, x, y), a, b)
+@functools.partial(jax.jit, static_argnames=("kind", "max_iters", "unroll", "trace", "early_exit"))
+def _run(offsets, target, local0, tol, *, kind, max_iters, unroll, trace, early_exit=False):
+    """The solver on component-first arrays: ``target (3, *B)``, ``local0 (J, 4, *B)``.
 
-
-@functools.partial(jax.jit, static_argnames=("kind", "max_iters", "unroll", "trace"))
-def _run(offsets, target, local0, tol, *, kind, max_iters, unroll, trace):
-    """The solver on component-first arrays: ``target (3, *B)``, ``local0 (J, 4, *B)``."""
+    Returns stacked ``local (J, 4, *B)``, ``positions (J, 3, *B)``, and ``(*B)`` error,
+    iterations, converged, reachable, plus the ``(max_iters, *B)`` trace or ``None``.
+    """
     J = local0.shape[0]
-    nb = target.ndim - 1
-    root = expand(offsets[0], nb).astype(target.dtype)
-    lengths = expand(jnp.sqrt(jnp.sum(offsets[1:] ** 2, axis=-1)), nb + 1).astype(target.dtype)
-    reach = jnp.sum(lengths, axis=0)[0]
-    local0 = _quat.renormalize(local0, axis=1)
+    B = target.shape[1:]
+    dtype = local0.dtype
+    tgt = _quat.unstack(target)
+    root = tuple(jnp.broadcast_to(c, B) for c in _quat.unstack(offsets[0]))
+    lengths = jnp.sqrt(jnp.sum(offsets[1:] ** 2, axis=-1))
+    reach = jnp.sum(lengths)
+    local0 = _quat.stack(_quat.renormalize(_quat.unstack(local0, axis=1)), axis=1)
 
-    P0, _ = fk_component_first(offsets, local0, unroll=unroll)
-    err0 = _norm(P0[J - 1] - target)
+    def fk(local_stacked):
+        P, G = fk_joints(offsets, _joints.split(local_stacked, unroll), B, unroll=unroll)
+        return _joints.stack(P), _joints.stack(G)
+
+    P0, G0 = fk(local0)
+    err0 = _quat.safe_norm(_quat.sub(_quat.unstack(P0[J - 1]), tgt))
     done0 = err0 <= tol
-    reachable = _norm(target - root) <= reach
-    local0 = break_symmetry(offsets, local0, P0, target, reach, done0, unroll=unroll)
-    P0, G0 = fk_component_first(offsets, local0, unroll=unroll)
+    reachable = _quat.safe_norm(_quat.sub(tgt, root)) <= reach
+    local0 = break_symmetry(local0, P0, G0, tgt, reach, done0, B)
+    P0, G0 = fk(local0)
+    L0 = _joints.split(local0, unroll)
 
     if kind == "ccd":
-        state0 = (local0, P0, G0)
+        state0 = (L0, _joints.split(P0, unroll), _joints.split(G0, unroll))
 
         def sweep(state):
-            return ccd_sweep(offsets, target, *state, unroll=unroll)
+            return ccd_sweep(offsets, tgt, *state, B, unroll=unroll)
 
         def end_of(state):
-            return state[1][J - 1]
+            return _joints.get(state[1], J - 1)
 
         stop_early = jnp.zeros_like(done0)
     else:
-        fallback = _quat.perpendicular(target - root)
-        straight = straight_towards(root, target, lengths, J, fallback)
-        straight = _joints.split(_joints.stack(straight), unroll)
+        fallback = _quat.perpendicular(_quat.sub(tgt, root))
+        straight = straight_towards(root, tgt, lengths, fallback)
+        if not unroll:
+            straight = _joints.stack(straight)
         state0 = _joints.split(P0, unroll)
 
         def sweep(state):
-            new = fabrik_sweep(state, target, root, lengths, unroll=unroll)
-            return _where_tree(reachable, new, straight)
+            new = fabrik_sweep(state, tgt, root, lengths, fallback, unroll=unroll)
+            return _quat.where(reachable, new, straight)
 
         def end_of(state):
             return _joints.get(state, J - 1)
@@ -116,23 +115,44 @@ def _run(offsets, target, local0, tol, *, kind, max_iters, unroll, trace):
     def body(carry, _):
         state, err, iters, done = carry
         new = sweep(state)
-        new_err = _norm(end_of(new) - target)
-        state = _where_tree(done, state, new)
+        new_err = _quat.safe_norm(_quat.sub(end_of(new), tgt))
+        state = _quat.where(done, state, new)
         err = jnp.where(done, err, new_err)
         iters = iters + (~done).astype(jnp.int32)
         done = done | (err <= tol) | stop_early
         return (state, err, iters, done), (err if trace else None)
 
-    iters0 = jnp.zeros(done0.shape, jnp.int32)
-    (state, _, iters, _), errs = lax.scan(body, (state0, err0, iters0, done0), None, length=max_iters)
+    iters0 = jnp.zeros(B, jnp.int32)
+    carry0 = (state0, err0, iters0, done0)
+    if not early_exit:
+        (state, _, iters, _), errs = lax.scan(body, carry0, None, length=max_iters)
+    else:
+        # Stop the whole batch once every element is done (forward-mode only).
+        buf0 = jnp.zeros((max_iters,) + B, dtype) if trace else None
+
+        def w_body(c):
+            k, carry, buf = c
+            carry, e = body(carry, None)
+            if trace:
+                buf = lax.dynamic_update_index_in_dim(buf, e, k, 0)
+            return k + 1, carry, buf
+
+        def w_cond(c):
+            return (c[0] < max_iters) & ~jnp.all(c[1][3])
+
+        k, (state, err_last, iters, _), buf = lax.while_loop(w_cond, w_body, (0, carry0, buf0))
+        errs = None
+        if trace:
+            rows = jnp.arange(max_iters).reshape((max_iters,) + (1,) * len(B))
+            errs = jnp.where(rows < k, buf, err_last)
 
     if kind == "ccd":
         local, P, _ = state
     else:
-        local = rotations_from_positions(offsets, local0, _joints.stack(state), unroll=unroll)
-        P, _ = fk_component_first(offsets, local, unroll=unroll)
-    err = _norm(P[J - 1] - target)
-    return local, P, err, iters, err <= tol, reachable, errs
+        local = rotations_from_positions(offsets, L0, state, B, unroll=unroll)
+        P, _ = fk_joints(offsets, local, B, unroll=unroll)
+    err = _quat.safe_norm(_quat.sub(_joints.get(P, J - 1), tgt))
+    return _joints.stack(local).astype(dtype), _joints.stack(P), err, iters, err <= tol, reachable, errs
 
 
 def _check_target_and_rotations(chain, target, rotations):
@@ -149,7 +169,7 @@ def _check_target_and_rotations(chain, target, rotations):
             raise ValueError("rotations contain a zero quaternion; use (1, 0, 0, 0) for no rotation")
 
 
-def _solve(kind, chain, target, rotations, *, max_iters, tol, trace, unroll):
+def _solve(kind, chain, target, rotations, *, max_iters, tol, trace, unroll, early_exit=False):
     if kind not in SOLVERS:
         raise ValueError(f"solver must be one of {SOLVERS}, got {kind!r}")
     if not isinstance(chain, Chain):
@@ -175,6 +195,7 @@ def _solve(kind, chain, target, rotations, *, max_iters, tol, trace, unroll):
         max_iters=int(max_iters),
         unroll=_joints.unrolled(J, unroll),
         trace=bool(trace),
+        early_exit=bool(early_exit),
     )
     return IKResult(
         rotations=jnp.moveaxis(local, (0, 1), (-2, -1)),
@@ -217,11 +238,18 @@ def fabrik(chain: Chain, target, rotations=None, *, max_iters: int = 100, tol=1e
 
 
 def solve(chain: Chain, targets, *, solver: str = "fabrik", rotations=None, max_iters: int = 100,
-          tol=1e-4, trace: bool = False, unroll: bool | None = None) -> IKResult:
+          tol=1e-4, trace: bool = False, unroll: bool | None = None, early_exit: bool = False) -> IKResult:
     """Batched IK over any leading shape of ``targets (..., 3)``.
 
     ``rotations`` may be ``(J, 4)`` (shared start pose) or ``(..., J, 4)``.  The batch
     trails in memory inside the kernel, so a large batch is one elementwise loop per
     joint update.  Per-sweep traces are off by default to save memory.
+
+    ``early_exit=True`` runs the sweeps in a ``lax.while_loop`` that stops as soon as
+    every element of the batch is done, instead of the fixed-length scan.  Results are
+    identical; it is much faster when ``tol > 0`` and most targets converge well before
+    ``max_iters``, but it supports forward-mode differentiation only (``jax.grad``
+    needs the default scan).
     """
-    return _solve(solver, chain, targets, rotations, max_iters=max_iters, tol=tol, trace=trace, unroll=unroll)
+    return _solve(solver, chain, targets, rotations, max_iters=max_iters, tol=tol, trace=trace,
+                  unroll=unroll, early_exit=early_exit)

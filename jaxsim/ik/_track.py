@@ -13,7 +13,7 @@ from .._dataclass import is_concrete
 from .._validate import check_finite
 from . import _joints, _quat
 from ._chain import Chain
-from ._fk import fk_component_first
+from ._fk import fk_joints
 from ._result import IKResult
 from ._solve import SOLVERS, _run
 
@@ -27,7 +27,7 @@ def rotation_change(a, b):
     Returns:
       ``(...)`` angles in ``[0, pi]``.
     """
-    qa, qb = _quat.to_first(jnp.asarray(a)), _quat.to_first(jnp.asarray(b))
+    qa, qb = _quat.unstack(jnp.asarray(a), axis=-1), _quat.unstack(jnp.asarray(b), axis=-1)
     return _quat.angle(_quat.mul(_quat.conj(qa), qb))
 
 
@@ -56,11 +56,12 @@ def _track(offsets, targets, local0, tol, max_step, *, kind, max_iters, unroll, 
             offsets, target, local_prev, tol, kind=kind, max_iters=max_iters, unroll=unroll, trace=True
         )
         if clamp:
-            a, b = jnp.swapaxes(local_prev, 0, 1), jnp.swapaxes(local, 0, 1)  # (4, J)
+            a, b = _quat.unstack(local_prev, axis=1), _quat.unstack(local, axis=1)  # tuples of (J,)
             delta = _quat.clamp_angle(_quat.mul(_quat.conj(a), b), max_step)
-            local = jnp.swapaxes(_quat.renormalize(_quat.mul(a, delta)), 0, 1)
-            P, _ = fk_component_first(offsets, local, unroll=unroll)
-            err = _quat.safe_norm(P[J - 1] - target)
+            local = _quat.stack(_quat.renormalize(_quat.mul(a, delta)), axis=1)
+            P, _ = fk_joints(offsets, _joints.split(local, unroll), (), unroll=unroll)
+            P = _joints.stack(P)
+            err = _quat.safe_norm(_quat.sub(_quat.unstack(P[J - 1]), _quat.unstack(target)))
             conv = err <= tol
         return local, (local, P, err, iters, conv, reachable, errs)
 

@@ -1,0 +1,64 @@
+"""Shared benchmark helpers: timing with compile time apart, JSON output."""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import statistics
+import time
+
+import jax
+
+RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
+
+
+def time_call(fn, *args, repeats: int = 7, min_time: float = 0.0):
+    """Time ``fn(*args)``: the first call (compile + run) apart from warm runs.
+
+    Returns a dict with ``first_s`` (compile + one run), ``compile_s`` (first minus the
+    median warm run), ``run_s`` (median warm run), ``best_s`` and ``runs``.
+    """
+    t0 = time.perf_counter()
+    jax.block_until_ready(fn(*args))
+    first = time.perf_counter() - t0
+    runs = []
+    t_start = time.perf_counter()
+    while len(runs) < repeats or time.perf_counter() - t_start < min_time:
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn(*args))
+        runs.append(time.perf_counter() - t0)
+    med = statistics.median(runs)
+    return {"first_s": first, "compile_s": max(first - med, 0.0), "run_s": med, "best_s": min(runs), "runs": len(runs)}
+
+
+def time_plain(fn, *args, repeats: int = 3):
+    """Median wall time of a plain (numpy) call."""
+    runs = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn(*args)
+        runs.append(time.perf_counter() - t0)
+    return {"run_s": statistics.median(runs), "best_s": min(runs), "runs": repeats}
+
+
+def machine() -> dict:
+    return {
+        "python": platform.python_version(),
+        "jax": jax.__version__,
+        "backend": jax.default_backend(),
+        "devices": [str(d) for d in jax.devices()],
+        "cpu_count": os.cpu_count(),
+        "platform": platform.platform(),
+        "x64": bool(jax.config.jax_enable_x64),
+    }
+
+
+def write(name: str, payload: dict) -> str:
+    os.makedirs(RESULTS, exist_ok=True)
+    path = os.path.join(RESULTS, name + ".json")
+    payload = {"benchmark": name, "machine": machine(), "timestamp": time.strftime("%Y-%m-%dT%H:%M:%S"), **payload}
+    with open(path, "w") as f:
+        json.dump(payload, f, indent=2)
+    print(f"wrote {path}")
+    return path

@@ -1,0 +1,149 @@
+"""The cloth's potential, defined once per spring element, and what derives from it.
+
+``energy(cloth, x) = sum_s k_s/2 (|x_j - x_i| - L_s)^2 - sum_i m_i g . x_i`` (springs plus
+gravity).  Forces are ``-jax.grad(energy)``; the implicit step's per-spring Hessian
+blocks are ``jax.hessian`` of the element potential.  ``spring_hessian`` is the lab's
+analytic Hessian (17.27), kept only to cross-check the autodiff one.
+
+Implicit damping.  The along-spring damping force on particle ``i`` of spring ``(i, j)``
+is ``f = d (v_ij . e) e`` with ``v_ij = v_j - v_i``, ``e`` the unit spring direction.
+Freezing ``e = e^n`` at the start of the step and putting ``v = (x - x^n)/h`` gives
+``f = -grad D(x)`` for the dissipation potential
+
+    D(x) = sum_s d/(2h) (e_s^n . ((x_j - x_i) - (x_j^n - x_i^n)))^2,
+
+so backward Euler with damping is still the minimisation of an incremental potential
+(17.19) with ``D`` added; ``D`` is quadratic with PSD blocks ``(d/h) e e^T``.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from .._dtype import tiny
+from ._scene import Cloth
+
+
+def _length(v):
+    """``|v|`` over the last axis, with a finite gradient at ``v = 0`` (a zero-length spring)."""
+    s = jnp.sum(v * v, axis=-1)
+    ok = s > tiny(v.dtype) ** 2
+    return jnp.where(ok, jnp.sqrt(jnp.where(ok, s, 1.0)), 0.0)
+
+
+def spring_element(xi, xj, L, k):
+    """Potential of one spring: ``k/2 (|x_j - x_i| - L)^2`` (J)."""
+    return 0.5 * k * (_length(xj - xi) - L) ** 2
+
+
+def damping_element(xi, xj, e0, d01_0, d_over_h):
+    """Dissipation potential of one spring with its direction ``e0`` frozen (see module doc)."""
+    s = jnp.sum(e0 * ((xj - xi) - d01_0), axis=-1)
+    return 0.5 * d_over_h * s * s
+
+
+def spring_energy(cloth: Cloth, x):
+    """Total spring energy (J) at positions ``x (N, 3)``."""
+    i, j = cloth.springs[:, 0], cloth.springs[:, 1]
+    return jnp.sum(spring_element(x[i], x[j], cloth.rest_length, cloth.stiffness))
+
+
+def gravity_energy(cloth: Cloth, x):
+    """Gravitational potential ``-sum m g . x`` (J)."""
+    return -jnp.sum(cloth.mass[:, None] * cloth.gravity * x)
+
+
+def energy(cloth: Cloth, x):
+    """The potential energy (J): springs plus gravity.  Shape ``(N, 3) -> ()``."""
+    return spring_energy(cloth, x) + gravity_energy(cloth, x)
+
+
+def forces(cloth: Cloth, x):
+    """Conservative forces ``-grad energy`` (N), ``(N, 3)``."""
+    return -jax.grad(energy, argnums=1)(cloth, x)
+
+
+def kinetic_energy(cloth: Cloth, v):
+    return 0.5 * jnp.sum(cloth.mass[:, None] * v * v)
+
+
+def total_energy(cloth: Cloth, x, v):
+    """Kinetic + spring + gravity energy (J)."""
+    return kinetic_energy(cloth, v) + energy(cloth, x)
+
+
+def spring_directions(cloth: Cloth, x):
+    """Unit directions ``e (S, 3)`` and vectors ``x_j - x_i (S, 3)`` of every spring."""
+    d = x[cloth.springs[:, 1]] - x[cloth.springs[:, 0]]
+    n = _length(d)[:, None]
+    return jnp.where(n > 0, d / jnp.where(n > 0, n, 1.0), 0.0), d
+
+
+def element_blocks(cloth: Cloth, x, damping_terms=None, *, project_psd: bool):
+    """Per-spring 3x3 blocks ``A_s`` of the potential's Hessian, by ``jax.hessian``.
+
+    Each element potential depends on ``x_j - x_i`` only, so its 6x6 Hessian is
+    ``[[A, -A], [-A, A]]``; ``A`` is taken from ``jax.hessian`` of the element and,
+    with ``project_psd``, made positive semidefinite.  For a spring,
+    ``A = k e e^T + k (1 - L/l)(I - e e^T)``: the perpendicular eigenvalue
+    ``k (1 - L/l)`` is negative for a compressed spring and is clamped at 0, which is
+    the exact PSD projection of the block (and of the 6x6 element Hessian).
+
+    Args:
+      damping_terms: ``(e0 (S,3), d01_0 (S,3), d/h)`` to add the implicit damping blocks.
+
+    Returns:
+      ``(S, 3, 3)`` blocks.
+    """
+    i, j = cloth.springs[:, 0], cloth.springs[:, 1]
+
+    def elem(xi, xj, L, k, *extra):
+        def phi(dx):
+            v = spring_element(xi, xj + dx, L, k)
+            if extra:
+                v = v + damping_element(xi, xj + dx, *extra)
+            return v
+
+        return jax.hessian(phi)(jnp.zeros_like(xi))
+
+    if damping_terms is None:
+        A = jax.vmap(elem)(x[i], x[j], cloth.rest_length, cloth.stiffness)
+    else:
+        e0, d0, doh = damping_terms
+        A = jax.vmap(elem, in_axes=(0, 0, 0, 0, 0, 0, None))(x[i], x[j], cloth.rest_length, cloth.stiffness, e0, d0, doh)
+    if project_psd:
+        e, _ = spring_directions(cloth, x)
+        eAe = jnp.einsum("si,sij,sj->s", e, A, e)
+        lam_perp = 0.5 * (jnp.trace(A, axis1=1, axis2=2) - eAe)
+        P = jnp.eye(3, dtype=A.dtype) - e[:, :, None] * e[:, None, :]
+        A = A + jnp.maximum(-lam_perp, 0.0)[:, None, None] * P
+    return A
+
+
+def assemble(cloth: Cloth, blocks):
+    """Dense ``(3N, 3N)`` matrix from per-spring blocks (17.28): ``+A`` on the diagonal
+    blocks ``ii``, ``jj`` and ``-A`` on ``ij``, ``ji``."""
+    N = cloth.num_particles
+    i, j = cloth.springs[:, 0], cloth.springs[:, 1]
+    H = jnp.zeros((N, N, 3, 3), blocks.dtype)
+    H = H.at[i, i].add(blocks).at[j, j].add(blocks).at[i, j].add(-blocks).at[j, i].add(-blocks)
+    return H.transpose(0, 2, 1, 3).reshape(3 * N, 3 * N)
+
+
+def spring_hessian(cloth: Cloth, x):
+    """The lab's analytic spring Hessian (17.27), for cross-checks.
+
+    ``H_e = k e e^T + k (1 - L/l)(I - e e^T)`` per spring, placed as in (17.28).
+
+    Returns:
+      ``(dense (3N, 3N), blocks (S, 3, 3))``.
+    """
+    i, j = cloth.springs[:, 0], cloth.springs[:, 1]
+    d = x[j] - x[i]
+    l = jnp.linalg.norm(d, axis=-1)
+    e = d / l[:, None]
+    k, L = cloth.stiffness, cloth.rest_length
+    eeT = e[:, :, None] * e[:, None, :]
+    blocks = k[:, None, None] * eeT + (k * (1 - L / l))[:, None, None] * (jnp.eye(3, dtype=x.dtype) - eeT)
+    return assemble(cloth, blocks), blocks

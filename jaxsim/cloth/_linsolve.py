@@ -1,0 +1,63 @@
+"""Linear solves for the Newton step: dense Cholesky, and matrix-free block-Jacobi PCG."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from jax import lax
+
+
+def dense_solve(H, b):
+    """Solve ``H x = b`` with Cholesky (``H`` SPD, ``(n, n)``); NaN if ``H`` is not SPD."""
+    c = jax.scipy.linalg.cho_factor(H, lower=True)
+    return jax.scipy.linalg.cho_solve(c, b)
+
+
+def pcg(apply_A, b, x0, apply_Minv, *, tol, max_iters: int):
+    """Preconditioned conjugate gradients (Hestenes & Stiefel; Shewchuk 1994, B3).
+
+    Written here because ``jax.scipy.sparse.linalg.cg`` reports no iteration count.
+    Stops when ``|r| <= tol * |b|``.  A non-positive curvature ``p.Ap <= 0`` (an
+    indefinite operator) stops the loop and keeps the last iterate.
+
+    Args:
+      apply_A, apply_Minv: linear maps on arrays shaped like ``b``.
+      b, x0: right-hand side and initial guess (any shape).
+
+    Returns:
+      ``(x, iterations, relative_residual)``.
+    """
+    dot = lambda u, v: jnp.sum(u * v)  # noqa: E731
+    bnorm = jnp.sqrt(dot(b, b))
+    thresh = tol * bnorm
+    r = b - apply_A(x0)
+    z = apply_Minv(r)
+    rz = dot(r, z)
+    state = (x0, r, z, z, rz, jnp.int32(0), jnp.array(False))
+
+    def cond(s):
+        x, r, z, p, rz, k, broke = s
+        return (k < max_iters) & (jnp.sqrt(dot(r, r)) > thresh) & ~broke
+
+    def body(s):
+        x, r, z, p, rz, k, broke = s
+        Ap = apply_A(p)
+        pAp = dot(p, Ap)
+        broke = ~(pAp > 0)
+        alpha = jnp.where(broke, 0.0, rz / jnp.where(broke, 1.0, pAp))
+        x = x + alpha * p
+        r = r - alpha * Ap
+        z = apply_Minv(r)
+        rz_new = dot(r, z)
+        beta = jnp.where(broke, 0.0, rz_new / jnp.where(rz == 0, 1.0, rz))
+        p = z + beta * p
+        return x, r, z, p, rz_new, k + 1, broke
+
+    x, r, _, _, _, k, _ = lax.while_loop(cond, body, state)
+    rel = jnp.sqrt(dot(r, r)) / jnp.where(bnorm > 0, bnorm, 1.0)
+    return x, k, rel
+
+
+def block_inverse(blocks):
+    """Inverses of ``(N, 3, 3)`` SPD blocks (the block-Jacobi preconditioner)."""
+    return jnp.linalg.inv(blocks)

@@ -1,0 +1,198 @@
+"""The mass-spring scene (a pytree dataclass), its state, and grid builders."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._dataclass import is_concrete, pytree_dataclass, static_field
+from .._dtype import as_float, default_float
+from .._validate import check_finite, check_positive, check_shape
+
+
+@pytree_dataclass
+class Cloth:
+    """A mass-spring system.
+
+    Attributes:
+      rest: ``(N, 3)`` rest positions (m).
+      springs: ``(S, 2)`` int32 particle ids ``(i, j)`` of each spring.
+      rest_length: ``(S,)`` rest lengths ``L`` (m), > 0.
+      stiffness: ``(S,)`` spring constants ``k`` (N/m).
+      mass: ``(N,)`` particle masses (kg), > 0.
+      pinned: ``(N,)`` bool, particles that never move.
+      gravity: ``(3,)`` gravitational acceleration (m/s²).
+      damping: ``()`` along-spring damping coefficient ``d`` (N·s/m), >= 0.
+      damped: static flag, ``damping != 0`` at construction; when False the compiled
+        step holds no damping code at all.
+
+    Raises:
+      ValueError: on wrong shapes, non-finite values, non-positive masses or rest
+        lengths, negative damping, or spring ids out of range.
+    """
+
+    rest: jax.Array
+    springs: jax.Array
+    rest_length: jax.Array
+    stiffness: jax.Array
+    mass: jax.Array
+    pinned: jax.Array
+    gravity: jax.Array
+    damping: jax.Array
+    damped: bool = static_field(default=True)
+
+    def __post_init__(self):
+        leaves = (self.rest, self.springs, self.rest_length, self.stiffness, self.mass, self.pinned,
+                  self.gravity, self.damping)
+        if not is_concrete(*leaves):
+            return
+        rest = check_shape("rest positions", self.rest, (None, 3))
+        N = rest.shape[0]
+        if N < 1:
+            raise ValueError("a Cloth needs at least one particle")
+        check_finite("rest positions", rest)
+        springs = np.asarray(self.springs)
+        if springs.size == 0:
+            springs = springs.reshape(0, 2)
+        springs = check_shape("springs", springs, (None, 2))
+        if springs.size and not np.issubdtype(springs.dtype, np.integer):
+            raise ValueError(f"springs must hold integer particle ids, got dtype {springs.dtype}")
+        if springs.size and (springs.min() < 0 or springs.max() >= N):
+            raise ValueError(f"spring ids must lie in [0, {N}), got range [{springs.min()}, {springs.max()}]")
+        if springs.size and np.any(springs[:, 0] == springs[:, 1]):
+            raise ValueError("a spring connects a particle to itself")
+        S = springs.shape[0]
+        L = check_finite("rest_length", check_shape("rest_length", self.rest_length, (S,)))
+        check_positive("rest_length", L)
+        k = check_finite("stiffness", check_shape("stiffness", self.stiffness, (S,)))
+        check_positive("stiffness", k, strict=False)
+        m = check_finite("mass", check_shape("mass", self.mass, (N,)))
+        check_positive("mass", m)
+        pinned = check_shape("pinned", self.pinned, (N,))
+        if pinned.dtype != np.bool_:
+            raise ValueError(f"pinned must be a bool mask of shape ({N},); use pin ids with grid() or pin_mask()")
+        g = check_finite("gravity", check_shape("gravity", self.gravity, (3,)))
+        d = check_finite("damping", check_shape("damping", self.damping, ()))
+        check_positive("damping", d, strict=False)
+        dtype = jax.dtypes.canonicalize_dtype(rest.dtype) if np.issubdtype(rest.dtype, np.floating) else default_float()
+        set_ = object.__setattr__
+        set_(self, "rest", as_float(rest, dtype))
+        set_(self, "springs", jnp.asarray(springs, jnp.int32))
+        set_(self, "rest_length", as_float(L, dtype))
+        set_(self, "stiffness", as_float(k, dtype))
+        set_(self, "mass", as_float(m, dtype))
+        set_(self, "pinned", jnp.asarray(pinned))
+        set_(self, "gravity", as_float(g, dtype))
+        set_(self, "damping", as_float(d, dtype))
+        set_(self, "damped", bool(self.damped) and float(d) != 0.0)
+
+    @property
+    def num_particles(self) -> int:
+        return self.rest.shape[-2]
+
+    @property
+    def num_springs(self) -> int:
+        return self.springs.shape[-2]
+
+    @property
+    def dtype(self):
+        return self.rest.dtype
+
+
+@pytree_dataclass
+class State:
+    """Simulation state.
+
+    Attributes:
+      x: ``(N, 3)`` positions (m).
+      v: ``(N, 3)`` velocities (m/s).
+    """
+
+    x: jax.Array
+    v: jax.Array
+
+    @staticmethod
+    def at_rest(cloth: Cloth) -> "State":
+        """Rest positions with zero velocity."""
+        return State(cloth.rest, jnp.zeros_like(cloth.rest))
+
+
+def pin_mask(n_particles: int, ids) -> np.ndarray:
+    """Bool mask ``(N,)`` from pin ids, with range checks."""
+    ids = np.asarray(ids, dtype=np.int64).reshape(-1)
+    if ids.size and (ids.min() < 0 or ids.max() >= n_particles):
+        raise ValueError(f"pin ids must lie in [0, {n_particles}), got {ids.tolist()}")
+    mask = np.zeros(n_particles, bool)
+    mask[ids] = True
+    return mask
+
+
+def grid_springs(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Springs of an ``(n+1) x (n+1)`` particle grid, id ``i*(n+1) + j``.
+
+    Returns ``(springs (S, 2), kind (S,))`` with kind 0 structural ``(i-1, j)``,
+    ``(i, j-1)``; 1 shear ``(i-1, j-1)``, ``(i-1, j+1)``; 2 bending ``(i-2, j)``, ``(i, j-2)``.
+    """
+    m = n + 1
+    pairs, kinds = [], []
+    for i in range(m):
+        for j in range(m):
+            me = i * m + j
+            for (di, dj), kind in (((-1, 0), 0), ((0, -1), 0), ((-1, -1), 1), ((-1, 1), 1), ((-2, 0), 2), ((0, -2), 2)):
+                a, b = i + di, j + dj
+                if 0 <= a < m and 0 <= b < m:
+                    pairs.append((a * m + b, me))
+                    kinds.append(kind)
+    return np.asarray(pairs, np.int32).reshape(-1, 2), np.asarray(kinds, np.int8)
+
+
+def grid(n: int, spacing: float = 0.2, *, origin=(0.0, 1.5, -1.0), mass: float = 1.0, stiffness: float = 100.0,
+         damping: float = 0.2, gravity: float = 0.3, pins=None, dtype=None) -> Cloth:
+    """A square cloth of ``(n+1) x (n+1)`` particles in the plane ``y = origin[1]``.
+
+    Particle ``(i, j)`` (id ``i*(n+1) + j``) starts at ``origin + (spacing*i, 0, spacing*j)``;
+    springs are structural, shear and bending (``grid_springs``), rest length = initial
+    distance.
+
+    Args:
+      n: cells per side (``n >= 1``).
+      spacing: particle spacing (m).
+      mass: per-particle mass (kg).
+      stiffness: spring constant for every spring (N/m).
+      damping: along-spring damping ``d`` (N·s/m).
+      gravity: magnitude (m/s²) of the acceleration ``(0, -gravity, 0)``.
+      pins: pinned particle ids; default the two corners of the first row, ``0`` and ``n``.
+      dtype: float dtype (default float32, float64 under ``jax_enable_x64``).
+    """
+    if not (isinstance(n, (int, np.integer)) and n >= 1):
+        raise ValueError(f"grid needs n >= 1 cells per side, got {n!r}")
+    if not spacing > 0:
+        raise ValueError(f"spacing must be > 0, got {spacing!r}")
+    m = n + 1
+    ii, jj = np.meshgrid(np.arange(m), np.arange(m), indexing="ij")
+    rest = np.stack([spacing * ii, np.zeros_like(ii, float), spacing * jj], -1).reshape(-1, 3) + np.asarray(origin)
+    springs, _ = grid_springs(n)
+    L = np.linalg.norm(rest[springs[:, 1]] - rest[springs[:, 0]], axis=-1)
+    dtype = default_float() if dtype is None else dtype
+    pins = [0, n] if pins is None else pins
+    return Cloth(
+        rest=np.asarray(rest, dtype), springs=springs, rest_length=np.asarray(L, dtype),
+        stiffness=np.full(len(springs), stiffness, dtype), mass=np.full(m * m, mass, dtype),
+        pinned=pin_mask(m * m, pins), gravity=np.asarray([0.0, -gravity, 0.0], dtype),
+        damping=np.asarray(damping, dtype),
+    )
+
+
+def lab_cloth(dtype=None) -> Cloth:
+    """The lab's cloth: 11 x 11 particles, spacing 0.2, 618 springs, k=100, d=0.2, g=0.3, pins 0 and 10."""
+    return grid(10, 0.2, dtype=dtype)
+
+
+def replace(cloth: Cloth, **kw) -> Cloth:
+    """``dataclasses.replace`` that recomputes the static ``damped`` flag for a new damping."""
+    if "damping" in kw and "damped" not in kw:
+        kw["damped"] = True
+    return dataclasses.replace(cloth, **kw)

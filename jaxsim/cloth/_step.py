@@ -1,0 +1,258 @@
+"""Time stepping: explicit (symplectic) Euler substeps and implicit Euler by Newton."""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import lax
+
+from .._dataclass import is_concrete, pytree_dataclass
+from .._validate import check_finite, check_shape
+from . import _energy as en
+from ._integrators import ExplicitEuler, ImplicitEuler
+from ._linsolve import block_inverse, dense_solve, pcg
+from ._scene import Cloth, State
+
+#: Armijo constants of the backtracking line search (lab Algorithm 2).
+BETA, GAMMA = 0.5, 1e-4
+
+
+@pytree_dataclass
+class StepInfo:
+    """Diagnostics of one step (a leading ``T`` axis after ``rollout``).
+
+    Attributes:
+      newton_iters: Newton iterations taken (0 for explicit Euler).
+      cg_iters: PCG iterations summed over the Newton iterations (0 unless CG).
+      grad_norm: ``|grad g|`` over free particles at the returned positions (N).
+      step_size: line-search step ``alpha`` of the last Newton iteration.
+      backtracks: line-search halvings summed over the Newton iterations.
+      residual: relative linear-solve residual of the last Newton iteration.
+      converged: Newton met ``max|dx|/h < tol`` (explicit: same as ``stable``).
+      stable: the state is finite and bounded; when False the step was rejected and the
+        returned state is the last good one (never NaN).
+    """
+
+    newton_iters: jax.Array
+    cg_iters: jax.Array
+    grad_norm: jax.Array
+    step_size: jax.Array
+    backtracks: jax.Array
+    residual: jax.Array
+    converged: jax.Array
+    stable: jax.Array
+
+
+def _bounded(cloth, x, v):
+    """Finite, and not flown off to a distance no simulation of this scene reaches."""
+    extent = jnp.max(jnp.abs(cloth.rest)) + 1.0
+    return jnp.all(jnp.isfinite(x)) & jnp.all(jnp.isfinite(v)) & (jnp.max(jnp.abs(x)) < 1e6 * extent)
+
+
+def _damping_forces(cloth, x, v):
+    e, _ = en.spring_directions(cloth, x)
+    i, j = cloth.springs[:, 0], cloth.springs[:, 1]
+    f = cloth.damping * jnp.sum((v[j] - v[i]) * e, axis=-1)[:, None] * e
+    return jnp.zeros_like(x).at[i].add(f).at[j].add(-f)
+
+
+def _explicit(cloth: Cloth, state: State, dt, integ: ExplicitEuler):
+    h = dt / integ.substeps
+    free = (~cloth.pinned)[:, None]
+
+    def sub(c, _):
+        x, v, ok = c
+        F = en.forces(cloth, x)  # springs + gravity, from jax.grad(energy)
+        if cloth.damped:
+            F = F + _damping_forces(cloth, x, v)
+        v_new = jnp.where(free, v + h * F / cloth.mass[:, None], 0.0)
+        x_new = x + h * v_new
+        good = ok & _bounded(cloth, x_new, v_new)
+        return (jnp.where(good, x_new, x), jnp.where(good, v_new, v), good), None
+
+    (x, v, ok), _ = lax.scan(sub, (state.x, state.v, jnp.array(True)), None, length=integ.substeps)
+    z = jnp.zeros((), x.dtype)
+    info = StepInfo(newton_iters=jnp.int32(0), cg_iters=jnp.int32(0), grad_norm=z, step_size=z,
+                    backtracks=jnp.int32(0), residual=z, converged=ok, stable=ok)
+    return State(x, v), info
+
+
+def _implicit(cloth: Cloth, state: State, dt, integ: ImplicitEuler):
+    N = cloth.num_particles
+    h = dt
+    x0, v0 = state.x, state.v
+    free = (~cloth.pinned)[:, None].astype(x0.dtype)
+    m = cloth.mass[:, None]
+    y = x0 + h * v0
+    solver = integ.resolved_solver(N)
+    if cloth.damped:
+        e0, d0 = en.spring_directions(cloth, x0)
+        damp = (e0, d0, cloth.damping / h)
+        i, j = cloth.springs[:, 0], cloth.springs[:, 1]
+    else:
+        damp = None
+
+    def objective(x):
+        """The incremental potential (17.19) plus the dissipation potential."""
+        g = 0.5 / h**2 * jnp.sum(m * (x - y) ** 2) + en.energy(cloth, x)
+        if damp is not None:
+            g = g + jnp.sum(en.damping_element(x[i], x[j], *damp))
+        return g
+
+    grad = jax.grad(objective)
+    spr_i, spr_j = cloth.springs[:, 0], cloth.springs[:, 1]
+
+    def newton_direction(x, gvec, guess):
+        b = -gvec * free
+        if solver == "dense":
+            if integ.project_psd:
+                A = en.element_blocks(cloth, x, damp, project_psd=True)
+                H = en.assemble(cloth, A)
+                H = H + jnp.diag(jnp.repeat(cloth.mass, 3) / h**2)
+            else:
+                H = jax.hessian(objective)(x).reshape(3 * N, 3 * N)
+            f = free.repeat(3, axis=1).reshape(-1)
+            H = H * f[:, None] * f[None, :] + jnp.diag(1.0 - f)
+            dx = dense_solve(H, b.reshape(-1)).reshape(N, 3)
+            return dx, jnp.int32(0), jnp.linalg.norm(H @ dx.reshape(-1) - b.reshape(-1)) / jnp.maximum(jnp.linalg.norm(b), 1e-30)
+        # matrix-free PCG
+        A = en.element_blocks(cloth, x, damp, project_psd=True) if integ.project_psd else None
+        if A is not None:
+            def apply_H(p):
+                p = p * free
+                f = jnp.einsum("sab,sb->sa", A, p[spr_j] - p[spr_i])
+                Hp = jnp.zeros_like(p).at[spr_j].add(f).at[spr_i].add(-f)
+                return (Hp + m / h**2 * p) * free + (1.0 - free) * p
+            diag_src = A
+        else:
+            def apply_H(p):
+                p = p * free
+                Hp = jax.jvp(grad, (x,), (p,))[1]
+                return Hp * free + (1.0 - free) * p
+            diag_src = en.element_blocks(cloth, x, damp, project_psd=False)
+        D = jnp.zeros((N, 3, 3), x.dtype).at[spr_i].add(diag_src).at[spr_j].add(diag_src)
+        D = D + (cloth.mass / h**2)[:, None, None] * jnp.eye(3, dtype=x.dtype)
+        eye = jnp.broadcast_to(jnp.eye(3, dtype=x.dtype), D.shape)
+        D = jnp.where(free[:, :, None] > 0, D, eye)
+        Dinv = block_inverse(D)
+        apply_Minv = lambda r: jnp.einsum("nab,nb->na", Dinv, r)  # noqa: E731
+        dx, k, rel = pcg(apply_H, b, guess * free, apply_Minv, tol=integ.cg_tol, max_iters=integ.cg_max_iters)
+        return dx, k, rel
+
+    def line_search(x, gx, gvec, dx):
+        slope = jnp.sum(gvec * dx)
+        if not integ.line_search:
+            return dx, jnp.ones((), x.dtype), jnp.int32(0), objective(x + dx)
+        # keep every step a descent step
+        descent = slope < 0
+        dx = jnp.where(descent, dx, -gvec * free * h**2 / m)
+        slope = jnp.where(descent, slope, jnp.sum(gvec * dx))
+
+        def cond(c):
+            a, k, gnew = c
+            armijo = gnew <= gx + GAMMA * a * slope
+            return (k < integ.max_backtracks) & ~(armijo & jnp.isfinite(gnew))
+
+        def body(c):
+            a, k, _ = c
+            a = BETA * a
+            return a, k + 1, objective(x + a * dx)
+
+        a, k, gnew = lax.while_loop(cond, body, (jnp.ones((), x.dtype), jnp.int32(0), objective(x + dx)))
+        return dx, a, k, gnew
+
+    def cond(c):
+        return (c["it"] < integ.newton_iters) & ~c["done"]
+
+    def body(c):
+        x = c["x"]
+        gvec = grad(x) * free
+        dx, k_cg, rel = newton_direction(x, gvec, c["guess"])
+        dx, a, k_ls, _ = line_search(x, objective(x), gvec, dx)
+        step = a * dx
+        x_new = x + step
+        ok = jnp.all(jnp.isfinite(x_new))
+        x_new = jnp.where(ok, x_new, x)
+        small = jnp.max(jnp.abs(step)) / h < integ.tol
+        return dict(x=x_new, guess=jnp.where(ok, step, jnp.zeros_like(step)), it=c["it"] + 1, done=small | ~ok,
+                    fail=c["fail"] | ~ok, cg=c["cg"] + k_cg, bt=c["bt"] + k_ls, alpha=a, res=rel, conv=small & ok)
+
+    z = jnp.zeros((), x0.dtype)
+    c0 = dict(x=x0, guess=h * v0, it=jnp.int32(0), done=jnp.array(False), fail=jnp.array(False),
+              cg=jnp.int32(0), bt=jnp.int32(0), alpha=z, res=z, conv=jnp.array(False))
+    c = lax.while_loop(cond, body, c0)
+    x = jnp.where(free > 0, c["x"], x0)
+    v = (x - x0) / h
+    ok = ~c["fail"] & _bounded(cloth, x, v)
+    x, v = jnp.where(ok, x, x0), jnp.where(ok, v, v0)
+    info = StepInfo(newton_iters=c["it"], cg_iters=c["cg"], grad_norm=jnp.linalg.norm(grad(x) * free),
+                    step_size=c["alpha"], backtracks=c["bt"], residual=c["res"], converged=c["conv"], stable=ok)
+    return State(x, v), info
+
+
+@functools.partial(jax.jit, static_argnames=("integrator",))
+def _step(cloth, state, dt, integrator):
+    if isinstance(integrator, ExplicitEuler):
+        return _explicit(cloth, state, dt, integrator)
+    return _implicit(cloth, state, dt, integrator)
+
+
+def check_inputs(cloth: Cloth, state: State, dt, integrator) -> None:
+    """Boundary validation (raises ``ValueError``/``TypeError`` before any tracing)."""
+    if not isinstance(cloth, Cloth):
+        raise TypeError(f"cloth must be a jaxsim.cloth.Cloth, got {type(cloth).__name__}")
+    if not isinstance(state, State):
+        raise TypeError(f"state must be a jaxsim.cloth.State, got {type(state).__name__}")
+    if not isinstance(integrator, (ExplicitEuler, ImplicitEuler)):
+        raise TypeError(f"integrator must be ExplicitEuler or ImplicitEuler, got {type(integrator).__name__}")
+    N = cloth.num_particles
+    for name, a in (("state.x", state.x), ("state.v", state.v)):
+        if is_concrete(a):
+            check_finite(name, check_shape(name, a, (N, 3)))
+        elif tuple(a.shape) != (N, 3):
+            raise ValueError(f"{name} must have shape ({N}, 3), got {tuple(a.shape)}")
+    if is_concrete(dt):
+        if np.ndim(dt) != 0 or not np.isfinite(dt) or not float(dt) > 0:
+            raise ValueError(f"dt must be a finite scalar > 0, got {dt!r}")
+
+
+def step(cloth: Cloth, state: State, dt, integrator=ImplicitEuler()) -> tuple[State, StepInfo]:
+    """Advance ``state`` by ``dt`` seconds.
+
+    Args:
+      cloth: the scene.
+      state: ``State(x (N,3), v (N,3))``.
+      dt: time step (s), > 0.
+      integrator: ``ExplicitEuler(substeps)`` or ``ImplicitEuler(...)``.
+
+    Returns:
+      ``(new_state, StepInfo)``.  Pinned particles keep their positions exactly.
+    """
+    check_inputs(cloth, state, dt, integrator)
+    return _step(cloth, state, jnp.asarray(dt, cloth.dtype), integrator)
+
+
+@functools.partial(jax.jit, static_argnames=("n_steps", "integrator"))
+def _rollout(cloth, state, dt, n_steps, integrator):
+    def f(s, _):
+        s2, info = _step(cloth, s, dt, integrator)
+        return s2, (s2, info)
+
+    _, (states, infos) = lax.scan(f, state, None, length=n_steps)
+    return states, infos
+
+
+def rollout(cloth: Cloth, state: State, dt, n_steps: int, integrator=ImplicitEuler()) -> tuple[State, StepInfo]:
+    """``n_steps`` steps in one ``lax.scan``.
+
+    Returns:
+      ``(states, infos)`` stacked over a leading ``(n_steps,)`` axis (``states.x`` is
+      ``(n_steps, N, 3)``; the initial state is not included).
+    """
+    check_inputs(cloth, state, dt, integrator)
+    if not (isinstance(n_steps, (int, np.integer)) and n_steps >= 1):
+        raise ValueError(f"n_steps must be an int >= 1, got {n_steps!r}")
+    return _rollout(cloth, state, jnp.asarray(dt, cloth.dtype), int(n_steps), integrator)
