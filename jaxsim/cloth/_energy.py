@@ -28,7 +28,7 @@ from ._scene import Cloth
 def _length(v):
     """``|v|`` over the last axis, with a finite gradient at ``v = 0`` (a zero-length spring)."""
     s = jnp.sum(v * v, axis=-1)
-    ok = s > tiny(v.dtype) ** 2
+    ok = ~(s <= tiny(v.dtype) ** 2)
     return jnp.where(ok, jnp.sqrt(jnp.where(ok, s, 1.0)), 0.0)
 
 

@@ -40,8 +40,9 @@ def ccd_sweep(offsets, target, local, positions, frames, batch_shape, *, unroll:
             g_parent = ident if i == 0 else frames[i - 1]
         else:
             g_parent = _quat.where(i > 0, _joints.get(frames, jnp.maximum(i - 1, 0)), ident)
-        g = _quat.renormalize(_quat.mul(r, _joints.get(frames, i)))
-        L = _joints.put(L, i, _quat.mul(_quat.conj(g_parent), g))
+        g = _quat.mul(r, _joints.get(frames, i))
+        # renormalised so rounding cannot compound through FK over many sweeps
+        L = _joints.put(L, i, _quat.renormalize(_quat.mul(_quat.conj(g_parent), g)))
         return L, end
 
     L, _ = _joints.loop(0, J - 1, body, (local, _joints.get(positions, J - 1)), unroll=unroll, reverse=True)

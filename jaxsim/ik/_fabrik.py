@@ -76,7 +76,7 @@ def rotations_from_positions(offsets, local0, positions, batch_shape, *, unroll:
         bone_now = _quat.rotate(g, _quat.unstack(offsets[i + 1]))
         bone_want = _quat.sub(_joints.get(positions, i + 1), _joints.get(positions, i))
         g = _quat.renormalize(_quat.mul(_quat.from_two_vectors(bone_now, bone_want), g))
-        L = _joints.put(L, i, _quat.mul(_quat.conj(g_parent), g))
+        L = _joints.put(L, i, _quat.renormalize(_quat.mul(_quat.conj(g_parent), g)))
         return L, g
 
     L, _ = _joints.loop(0, J - 1, body, (local0, ident), unroll=unroll)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from . import _joints, _quat
 from ._chain import Chain, Pose
@@ -55,7 +56,7 @@ def fk(chain: Chain, rotations: jax.Array | None = None, *, unroll: bool | None 
       chain: the chain, with ``offsets (J, 3)``.
       rotations: ``(..., J, 4)`` local unit quaternions (w, x, y, z); ``None`` is the rest
         pose.  Any leading batch shape is allowed.
-      unroll: unroll the joint loop (default: for ``J <= 16``).
+      unroll: unroll the joint loop (default: ``J <= 16`` and a batch of >= 256).
 
     Returns:
       ``Pose`` with global ``positions (..., J, 3)`` and ``rotations (..., J, 4)``.
@@ -66,7 +67,7 @@ def fk(chain: Chain, rotations: jax.Array | None = None, *, unroll: bool | None 
     J = chain.num_joints
     if rotations.shape[-2:] != (J, 4):
         raise ValueError(f"rotations must have shape (..., {J}, 4), got {rotations.shape}")
-    unroll = _joints.unrolled(J, unroll)
+    unroll = _joints.unrolled(J, unroll, int(np.prod(rotations.shape[:-2])))
     local = _joints.split(jnp.moveaxis(rotations, (-2, -1), (0, 1)), unroll)
     P, G = fk_joints(chain.offsets, local, rotations.shape[:-2], unroll=unroll)
     return Pose(

@@ -63,16 +63,16 @@ def sqnorm(v):
 
 
 def safe_norm(v):
-    """Euclidean norm, with a zero (not NaN) gradient at ``v = 0``."""
+    """Euclidean norm, with a zero (not NaN) gradient at ``v = 0``; NaN stays NaN."""
     s = sqnorm(v)
-    ok = s > tiny(_dtype(v)) ** 2
+    ok = ~(s <= tiny(_dtype(v)) ** 2)
     return jnp.where(ok, jnp.sqrt(jnp.where(ok, s, 1.0)), 0.0)
 
 
 def normalize(v, fallback):
     """``v / |v|``, or the unit vector ``fallback`` where ``|v|`` is too small to divide by."""
     n = safe_norm(v)
-    ok = n > tiny(_dtype(v))
+    ok = ~(n <= tiny(_dtype(v)))
     inv = 1.0 / jnp.where(ok, n, 1.0)
     return tuple(jnp.where(ok, x * inv, f) for x, f in zip(v, fallback))
 

@@ -193,7 +193,7 @@ def _solve(kind, chain, target, rotations, *, max_iters, tol, trace, unroll, ear
         jnp.asarray(tol, dtype),
         kind=kind,
         max_iters=int(max_iters),
-        unroll=_joints.unrolled(J, unroll),
+        unroll=_joints.unrolled(J, unroll, int(np.prod(batch))),
         trace=bool(trace),
         early_exit=bool(early_exit),
     )
@@ -219,7 +219,7 @@ def ccd(chain: Chain, target, rotations=None, *, max_iters: int = 100, tol=1e-4,
       max_iters: number of sweeps scanned (static; a new value recompiles).
       tol: stop when ``|end - target| <= tol`` (scene units).
       trace: also return the per-sweep error ``trace (..., max_iters)``.
-      unroll: unroll the loop over joints (default: ``J <= 16``).
+      unroll: unroll the loop over joints (default: ``J <= 16`` and a batch of >= 256).
 
     Returns:
       ``IKResult``.  Sweeps after convergence are masked no-ops.

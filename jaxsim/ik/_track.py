@@ -85,7 +85,7 @@ def track(chain: Chain, targets, *, solver: str = "fabrik", rotations=None, max_
         most this much per frame; the solution is pulled back along the same rotation
         axis.  This is the lab's answer to frame-to-frame jitter; the price is tracking
         error while the bound is active (reported in ``error``/``converged``).
-      unroll: unroll the joint loop (default: ``J <= 16``).
+      unroll: unroll the joint loop (default: rolled, the faster choice for one target).
 
     Returns:
       ``IKResult`` whose fields have a leading ``T`` axis; ``trace`` is ``(T, max_iters)``.
@@ -114,7 +114,7 @@ def track(chain: Chain, targets, *, solver: str = "fabrik", rotations=None, max_
         jnp.asarray(np.pi if max_step_angle is None else max_step_angle, dtype),
         kind=solver,
         max_iters=int(max_iters),
-        unroll=_joints.unrolled(J, unroll),
+        unroll=_joints.unrolled(J, unroll, 1),
         clamp=max_step_angle is not None,
     )
     return IKResult(rotations=local, positions=P, error=err, iterations=iters, converged=conv,
