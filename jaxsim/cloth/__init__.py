@@ -1,12 +1,13 @@
 """Mass-spring cloth: one energy definition, implicit Euler by Newton (dense or CG), explicit baseline."""
 
+from ._diagnostics import EnergyReport, energy_report
 from ._energy import element_blocks, energy, forces, kinetic_energy, spring_energy, spring_hessian, total_energy
 from ._integrators import AUTO_DENSE_MAX_PARTICLES, ExplicitEuler, ImplicitEuler
 from ._scene import Cloth, State, grid, grid_springs, lab_cloth, pin_mask, replace
 from ._step import StepInfo, rollout, step
 
 __all__ = [
-    "Cloth", "State", "StepInfo", "ExplicitEuler", "ImplicitEuler", "AUTO_DENSE_MAX_PARTICLES",
+    "Cloth", "State", "StepInfo", "EnergyReport", "energy_report", "ExplicitEuler", "ImplicitEuler", "AUTO_DENSE_MAX_PARTICLES",
     "grid", "grid_springs", "lab_cloth", "pin_mask", "replace", "energy", "spring_energy", "forces",
     "kinetic_energy", "total_energy", "element_blocks", "spring_hessian", "step", "rollout",
 ]

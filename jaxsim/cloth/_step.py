@@ -151,9 +151,12 @@ def _implicit(cloth: Cloth, state: State, dt, integ: ImplicitEuler):
         dx = jnp.where(descent, dx, -gvec * free * h**2 / m)
         slope = jnp.where(descent, slope, jnp.sum(gvec * dx))
 
+        # rounding allowance: at convergence g changes by less than its last bits
+        slack = 8 * jnp.finfo(x.dtype).eps * jnp.abs(gx)
+
         def cond(c):
             a, k, gnew = c
-            armijo = gnew <= gx + GAMMA * a * slope
+            armijo = gnew <= gx + GAMMA * a * slope + slack
             return (k < integ.max_backtracks) & ~(armijo & jnp.isfinite(gnew))
 
         def body(c):
