@@ -13,8 +13,10 @@ import jax
 RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
 
 
-def time_call(fn, *args, repeats: int = 7, min_time: float = 0.0):
+def time_call(fn, *args, repeats: int = 7, min_time: float = 0.0, budget: float | None = None):
     """Time ``fn(*args)``: the first call (compile + run) apart from warm runs.
+
+    With ``budget`` (seconds), fewer warm runs are made when one run is slow (at least 1).
 
     Returns a dict with ``first_s`` (compile + one run), ``compile_s`` (first minus the
     median warm run), ``run_s`` (median warm run), ``best_s`` and ``runs``.
@@ -22,6 +24,8 @@ def time_call(fn, *args, repeats: int = 7, min_time: float = 0.0):
     t0 = time.perf_counter()
     jax.block_until_ready(fn(*args))
     first = time.perf_counter() - t0
+    if budget is not None:
+        repeats = max(1, min(repeats, int(budget / max(first, 1e-9))))
     runs = []
     t_start = time.perf_counter()
     while len(runs) < repeats or time.perf_counter() - t_start < min_time:

@@ -6,9 +6,10 @@ import dataclasses
 
 SOLVERS = ("dense", "cg", "auto")
 
-#: ``solver="auto"`` uses dense Cholesky up to this many free particles, CG above
-#: (measured crossover, see ``benchmarks/cloth_step.py``).
-AUTO_DENSE_MAX_PARTICLES = 400
+#: ``solver="auto"`` uses dense Cholesky up to this many particles, CG above.  Measured
+#: with ``benchmarks/cloth_step.py``: on the lab cloth (121 particles) a converged CG
+#: step already runs ~7x faster than the dense one, so dense is kept for tiny scenes only.
+AUTO_DENSE_MAX_PARTICLES = 64
 
 
 @dataclasses.dataclass(frozen=True)
@@ -33,7 +34,8 @@ class ImplicitEuler:
       solver: ``"dense"`` (Cholesky on the assembled Hessian), ``"cg"`` (matrix-free
         block-Jacobi PCG) or ``"auto"`` (dense up to ``AUTO_DENSE_MAX_PARTICLES``).
       newton_iters: maximum Newton iterations per step.
-      tol: stop when ``max|dx| / h < tol`` (m/s).
+      tol: stop when ``max|dx| / h < tol`` (m/s), or when ``max|dx|`` is at the rounding
+        level of the positions (``4 eps max|x|``), which is what float32 can resolve.
       line_search: backtracking (Armijo) line search, Algorithm 2 of the lab.
       project_psd: clamp each spring block's negative (compression) eigenvalue at 0.
       cg_tol: relative residual at which PCG stops.

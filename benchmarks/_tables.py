@@ -1,0 +1,64 @@
+"""Print the README's markdown tables from ``benchmarks/results/*.json``."""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+
+sys.path.insert(0, os.path.dirname(__file__))
+from _common import RESULTS  # noqa: E402
+
+
+def load(name):
+    with open(os.path.join(RESULTS, name + ".json")) as f:
+        return json.load(f)
+
+
+def ik_table():
+    d = load("ik_throughput")
+    out = ["| solver | setting | layout | M solves/s | run (ms) | compile (s) | mean sweeps |", "|---|---|---|---|---|---|---|"]
+    for r in d["rows"]:
+        if r["solver"] == "ikpy":
+            out.append(f"| ikpy | default | `inverse_kinematics`, one target | {r['solves_per_s'] / 1e6:.6f} | | | |")
+            continue
+        layout = r["label"].split(r["mode"])[-1].strip()
+        out.append(f"| {r['solver']} | {r['mode']} | {layout} | {r['solves_per_s'] / 1e6:.3f} | "
+                   f"{1e3 * r['run_s']:.1f} | {r.get('compile_s', float('nan')):.2f} | {r.get('mean_iterations', float('nan')):.1f} |")
+    s = d["summary"]
+    out += ["", f"FABRIK vs the numpy baseline: {s['fabrik_speedup_vs_numpy']:.1f}x; max |difference| to it on reachable "
+            f"targets {s['max_abs_diff_vs_numpy_fabrik']:.1e}."]
+    return "\n".join(out)
+
+
+def stability_table():
+    d = load("cloth_stability")
+    out = []
+    for name, rows in d["scenes"].items():
+        out += [f"**{name}**", "", "| k (N/m) | dt (s) | finite | E_end <= E0 | steps with rise | max rise (J) | Newton mean/max | CG max | backtracks | converged |",
+                "|---|---|---|---|---|---|---|---|---|---|"]
+        for r in rows:
+            out.append(f"| {r['k']:.0e} | 1/{round(1 / r['dt'])} | {r['finite']} | {r['energy_not_above_initial']} | {r['rises']} | "
+                       f"{r['max_rise']:.1e} | {r['mean_newton']:.1f}/{r['max_newton']} | {r['max_cg']} | {r['backtracks']} | "
+                       f"{100 * r['converged_fraction']:.0f}% |")
+        out.append("")
+    return "\n".join(out)
+
+
+def cloth_table():
+    d = load("cloth_step")
+    out = ["| scene | method | dtype | ms/step | Newton | CG | max error vs ref (m) | speed-up vs scipy |", "|---|---|---|---|---|---|---|---|"]
+    for r in d["rows"]:
+        if r["method"].startswith("scipy"):
+            out.append(f"| {r['scene']} | {r['method']} | float64 | {r['ms_per_step']:.2f} | {r['newton']} | | {r['error_vs_ref']:.1e} | 1 |")
+        else:
+            out.append(f"| {r['scene']} | {r['method']} | {r['dtype']} | {r['ms_per_step']:.3f} | {r['newton']} | {r['cg_iters']} | "
+                       f"{r['error_vs_ref']:.1e} | {r['speedup_vs_scipy']:.1f} |")
+    return "\n".join(out)
+
+
+if __name__ == "__main__":
+    which = sys.argv[1:] or ["ik", "stability", "cloth"]
+    for w in which:
+        print({"ik": ik_table, "stability": stability_table, "cloth": cloth_table}[w]())
+        print()
