@@ -129,7 +129,9 @@ def main():
                 rows.append(row)
                 print(f"{name:22s} {label + ' ' + row['dtype']:34s} {row['ms_per_step']:9.3f} ms  err {err:.1e}  "
                       f"newton {row['newton']} cg {row['cg_iters']}  x{row['speedup_vs_scipy']:.1f} vs scipy", flush=True)
-    write("cloth_step", {"rows": rows, "quick": args.quick})
+        # written after every scene, so an interrupted run keeps what it measured
+        write("cloth_step", {"rows": rows, "quick": args.quick, "complete": False})
+    write("cloth_step", {"rows": rows, "quick": args.quick, "complete": True})
 
 
 if __name__ == "__main__":
