@@ -16,7 +16,6 @@ import time
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 sys.path.insert(0, __import__("os").path.dirname(__file__))
 from _common import write  # noqa: E402

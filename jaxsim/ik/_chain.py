@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
-
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -98,8 +96,3 @@ def straight_chain(lengths, root=(0.0, 0.0, 0.0), direction=(0.0, 0.0, 1.0)) -> 
     d = np.asarray(direction, dtype=np.float64)
     d = d / np.linalg.norm(d)
     return Chain(np.concatenate([np.asarray(root, np.float64)[None], lengths[:, None] * d[None]]))
-
-
-def replace(chain: Chain, **kw) -> Chain:
-    """``dataclasses.replace`` for chains (re-validates concrete inputs)."""
-    return dataclasses.replace(chain, **kw)
