@@ -249,3 +249,7 @@ def test_bad_inputs_raise():
         ik.fabrik(arm, [0, 0, 0], tol=-1.0)
     with pytest.raises(ValueError, match="solver"):
         ik.solve(arm, np.zeros((3, 3)), solver="jacobian")
+    with pytest.raises(ValueError, match="tol"):
+        ik.track(arm, np.zeros((3, 3)), tol=-1.0)
+    with pytest.raises(ValueError, match="max_iters"):
+        ik.track(arm, np.zeros((3, 3)), max_iters=0)

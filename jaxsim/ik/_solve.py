@@ -169,15 +169,20 @@ def _check_target_and_rotations(chain, target, rotations):
             raise ValueError("rotations contain a zero quaternion; use (1, 0, 0, 0) for no rotation")
 
 
-def _solve(kind, chain, target, rotations, *, max_iters, tol, trace, unroll, early_exit=False):
-    if kind not in SOLVERS:
-        raise ValueError(f"solver must be one of {SOLVERS}, got {kind!r}")
+def check_settings(chain, solver, max_iters, tol):
+    """Boundary checks shared by every IK entry point (raise before tracing)."""
+    if solver not in SOLVERS:
+        raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
     if not isinstance(chain, Chain):
         raise TypeError(f"chain must be a jaxsim.ik.Chain, got {type(chain).__name__}")
     if not (isinstance(max_iters, (int, np.integer)) and max_iters >= 1):
         raise ValueError(f"max_iters must be an int >= 1, got {max_iters!r}")
     if is_concrete(tol) and not (np.ndim(tol) == 0 and float(tol) >= 0 and np.isfinite(tol)):
         raise ValueError(f"tol must be a finite scalar >= 0, got {tol!r}")
+
+
+def _solve(kind, chain, target, rotations, *, max_iters, tol, trace, unroll, early_exit=False):
+    check_settings(chain, kind, max_iters, tol)
     dtype = chain.offsets.dtype
     target = jnp.asarray(target, dtype)
     rotations = chain.rest_rotations() if rotations is None else jnp.asarray(rotations, dtype)

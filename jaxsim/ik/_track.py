@@ -15,7 +15,7 @@ from . import _joints, _quat
 from ._chain import Chain
 from ._fk import fk_joints
 from ._result import IKResult
-from ._solve import SOLVERS, _run
+from ._solve import _run, check_settings
 
 
 def rotation_change(a, b):
@@ -90,10 +90,7 @@ def track(chain: Chain, targets, *, solver: str = "fabrik", rotations=None, max_
     Returns:
       ``IKResult`` whose fields have a leading ``T`` axis; ``trace`` is ``(T, max_iters)``.
     """
-    if solver not in SOLVERS:
-        raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
-    if not (isinstance(max_iters, (int, np.integer)) and max_iters >= 1):
-        raise ValueError(f"max_iters must be an int >= 1, got {max_iters!r}")
+    check_settings(chain, solver, max_iters, tol)
     dtype = chain.offsets.dtype
     targets = jnp.asarray(targets, dtype)
     J = chain.num_joints
