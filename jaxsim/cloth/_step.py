@@ -174,7 +174,7 @@ def _implicit(cloth: Cloth, state: State, dt, integ: ImplicitEuler):
         x = c["x"]
         gvec = grad(x) * free
         dx, k_cg, rel = newton_direction(x, gvec, c["guess"])
-        dx, a, k_ls, _ = line_search(x, objective(x), gvec, dx)
+        dx, a, k_ls, g_new = line_search(x, c["g"], gvec, dx)  # g(x) carried from the last iteration
         step = a * dx
         x_new = x + step
         ok = jnp.all(jnp.isfinite(x_new))
@@ -183,11 +183,12 @@ def _implicit(cloth: Cloth, state: State, dt, integ: ImplicitEuler):
         # (float32 cannot resolve max|dx|/h below ~eps*|x|/h, e.g. 1e-5 m/s at h=1/60)
         dmax = jnp.max(jnp.abs(step))
         small = (dmax / h < integ.tol) | (dmax <= 4 * jnp.finfo(x.dtype).eps * jnp.max(jnp.abs(x)))
-        return dict(x=x_new, guess=jnp.where(ok, step, jnp.zeros_like(step)), it=c["it"] + 1, done=small | ~ok,
+        return dict(x=x_new, g=jnp.where(ok, g_new, c["g"]), guess=jnp.where(ok, step, jnp.zeros_like(step)),
+                    it=c["it"] + 1, done=small | ~ok,
                     fail=c["fail"] | ~ok, cg=c["cg"] + k_cg, bt=c["bt"] + k_ls, alpha=a, res=rel, conv=small & ok)
 
     z = jnp.zeros((), x0.dtype)
-    c0 = dict(x=x0, guess=h * v0, it=jnp.int32(0), done=jnp.array(False), fail=jnp.array(False),
+    c0 = dict(x=x0, g=objective(x0), guess=h * v0, it=jnp.int32(0), done=jnp.array(False), fail=jnp.array(False),
               cg=jnp.int32(0), bt=jnp.int32(0), alpha=z, res=z, conv=jnp.array(False))
     c = lax.while_loop(cond, body, c0)
     x = jnp.where(free > 0, c["x"], x0)
