@@ -11,6 +11,17 @@ def test_demo_fast_writes_summary(tmp_path):
     text = (out / "summary.md").read_text()
     assert "| circle | fabrik | 150 |" in text and "Cloth" in text
     assert str(out) in r.stdout or os.path.abspath(str(out)) in r.stdout
+    assert "[demo] IK 1/7" in r.stdout and "[demo] cloth" in r.stdout  # progress per scene
+    from PIL import Image
+
+    from jaxsim import curves
+
+    stems = [f"ik_{c}" for c in curves.CURVES] + ["ik_circle_ccd", "cloth"]
+    for stem in stems:
+        png, gif = Image.open(out / f"{stem}.png"), Image.open(out / f"{stem}.gif")
+        assert png.format == "PNG" and gif.format == "GIF" and gif.n_frames >= 10, stem
+        assert f"{stem}.gif" in text
+    assert Image.open(out / "cloth.gif").n_frames == 11  # 61 states, every 6th in --fast
 
 
 def test_help_lists_commands():

@@ -192,7 +192,16 @@ def lab_cloth(dtype=None) -> Cloth:
 
 
 def replace(cloth: Cloth, **kw) -> Cloth:
-    """``dataclasses.replace`` that recomputes the static ``damped`` flag for a new damping."""
+    """``dataclasses.replace`` for scenes.
+
+    Scalars given for the per-spring ``stiffness``/``rest_length`` or the per-particle
+    ``mass`` are broadcast to ``(S,)``/``(N,)`` in the scene's dtype, and a new
+    ``damping`` sets the static ``damped`` flag (so a zero damping can still be traced).
+    """
+    shapes = {"stiffness": (cloth.num_springs,), "rest_length": (cloth.num_springs,), "mass": (cloth.num_particles,)}
+    for name, shape in shapes.items():
+        if name in kw and np.ndim(kw[name]) == 0:
+            kw[name] = jnp.full(shape, kw[name], cloth.dtype)
     if "damping" in kw and "damped" not in kw:
         kw["damped"] = True
     return dataclasses.replace(cloth, **kw)

@@ -1,0 +1,14 @@
+"""Plotting and animation with matplotlib (imported only here, never by ``import jaxsim``).
+
+Every function draws on an Agg canvas of its own (no pyplot, no display needed) unless
+an ``ax`` is passed, returns the matplotlib ``Figure``, and writes a file when given a
+path.  GIFs are written with ``matplotlib.animation.PillowWriter``.
+"""
+
+from ._cloth import animate_cloth, plot_cloth
+from ._common import new_figure, render_text, save
+from ._ik import animate_tracking, plot_chain, plot_tracking
+from ._plots import plot_error_vs_time
+
+__all__ = ["plot_chain", "plot_tracking", "animate_tracking", "plot_cloth", "animate_cloth",
+           "plot_error_vs_time", "render_text", "new_figure", "save"]
