@@ -1,5 +1,6 @@
 """Mass-spring cloth: one energy definition, implicit Euler by Newton (dense or CG), explicit baseline."""
 
+from ._batch import batch_rollout, stack_scenes
 from ._diagnostics import EnergyReport, energy_report
 from ._energy import element_blocks, energy, forces, kinetic_energy, spring_energy, spring_hessian, total_energy
 from ._integrators import AUTO_DENSE_MAX_PARTICLES, ExplicitEuler, ImplicitEuler
@@ -9,5 +10,5 @@ from ._step import StepInfo, rollout, step
 __all__ = [
     "Cloth", "State", "StepInfo", "EnergyReport", "energy_report", "ExplicitEuler", "ImplicitEuler", "AUTO_DENSE_MAX_PARTICLES",
     "grid", "grid_springs", "lab_cloth", "pin_mask", "replace", "energy", "spring_energy", "forces",
-    "kinetic_energy", "total_energy", "element_blocks", "spring_hessian", "step", "rollout",
+    "kinetic_energy", "total_energy", "element_blocks", "spring_hessian", "step", "rollout", "batch_rollout", "stack_scenes",
 ]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 
 import jax
@@ -80,28 +81,59 @@ def _explicit(cloth: Cloth, state: State, dt, integ: ExplicitEuler):
     return State(x, v), info
 
 
-def _implicit(cloth: Cloth, state: State, dt, integ: ImplicitEuler):
-    N = cloth.num_particles
-    h = dt
-    x0, v0 = state.x, state.v
-    free = (~cloth.pinned)[:, None].astype(x0.dtype)
-    m = cloth.mass[:, None]
+def incremental_potential(x, theta):
+    """The lab's incremental potential (17.19) plus the dissipation potential.
+
+    ``g(x) = 1/(2h^2) |x - y|_M^2 + E(x) + D(x)`` with ``y = x^n + h v^n`` (gravity is
+    part of ``E``) and ``D`` the frozen-direction damping potential (``_energy`` module
+    doc; absent when ``cloth.damped`` is False).
+
+    Args:
+      x: ``(N, 3)`` candidate end-of-step positions.
+      theta: ``(cloth, x^n (N,3), v^n (N,3), h)``, everything the step depends on.
+    """
+    cloth, x0, v0, h = theta
     y = x0 + h * v0
-    solver = integ.resolved_solver(N)
+    g = 0.5 / h**2 * jnp.sum(cloth.mass[:, None] * (x - y) ** 2) + en.energy(cloth, x)
     if cloth.damped:
         e0, d0 = en.spring_directions(cloth, x0)
-        damp = (e0, d0, cloth.damping / h)
         i, j = cloth.springs[:, 0], cloth.springs[:, 1]
-    else:
-        damp = None
+        g = g + jnp.sum(en.damping_element(x[i], x[j], e0, d0, cloth.damping / h))
+    return g
 
-    def objective(x):
-        """The incremental potential (17.19) plus the dissipation potential."""
-        g = 0.5 / h**2 * jnp.sum(m * (x - y) ** 2) + en.energy(cloth, x)
-        if damp is not None:
-            g = g + jnp.sum(en.damping_element(x[i], x[j], *damp))
-        return g
 
+def _damping_terms(theta):
+    cloth, x0, _, h = theta
+    if not cloth.damped:
+        return None
+    e0, d0 = en.spring_directions(cloth, x0)
+    return e0, d0, cloth.damping / h
+
+
+def _block_jacobi(cloth, A, h, free):
+    """``r -> D^{-1} r`` with ``D`` the 3x3 diagonal blocks of ``M/h^2 + sum_s A_s`` (identity on pins)."""
+    N = cloth.num_particles
+    i, j = cloth.springs[:, 0], cloth.springs[:, 1]
+    D = jnp.zeros((N, 3, 3), A.dtype).at[i].add(A).at[j].add(A)
+    D = D + (cloth.mass / h**2)[:, None, None] * jnp.eye(3, dtype=A.dtype)
+    D = jnp.where(free[:, :, None] > 0, D, jnp.broadcast_to(jnp.eye(3, dtype=A.dtype), D.shape))
+    Dinv = block_inverse(D)
+    return lambda r: jnp.einsum("nab,nb->na", Dinv, r)
+
+
+def _newton(theta, integ: ImplicitEuler):
+    """Newton's method with backtracking line search (lab Algorithm 2) on ``g(., theta)``.
+
+    Returns the end-of-step positions (pins at ``x^n``) and the loop's statistics.
+    Runs on ``stop_gradient`` inputs: derivatives come from ``_solution`` instead.
+    """
+    cloth, x0, v0, h = theta
+    N = cloth.num_particles
+    free = (~cloth.pinned)[:, None].astype(x0.dtype)
+    m = cloth.mass[:, None]
+    solver = integ.resolved_solver(N)
+    damp = _damping_terms(theta)
+    objective = functools.partial(incremental_potential, theta=theta)
     grad = jax.grad(objective)
     spr_i, spr_j = cloth.springs[:, 0], cloth.springs[:, 1]
 
@@ -133,12 +165,7 @@ def _implicit(cloth: Cloth, state: State, dt, integ: ImplicitEuler):
                 Hp = jax.jvp(grad, (x,), (p,))[1]
                 return Hp * free + (1.0 - free) * p
             diag_src = en.element_blocks(cloth, x, damp, project_psd=False)
-        D = jnp.zeros((N, 3, 3), x.dtype).at[spr_i].add(diag_src).at[spr_j].add(diag_src)
-        D = D + (cloth.mass / h**2)[:, None, None] * jnp.eye(3, dtype=x.dtype)
-        eye = jnp.broadcast_to(jnp.eye(3, dtype=x.dtype), D.shape)
-        D = jnp.where(free[:, :, None] > 0, D, eye)
-        Dinv = block_inverse(D)
-        apply_Minv = lambda r: jnp.einsum("nab,nb->na", Dinv, r)  # noqa: E731
+        apply_Minv = _block_jacobi(cloth, diag_src, h, free)
         dx, k, rel = pcg(apply_H, b, guess * free, apply_Minv, tol=integ.cg_tol, max_iters=integ.cg_max_iters)
         return dx, k, rel
 
@@ -192,11 +219,76 @@ def _implicit(cloth: Cloth, state: State, dt, integ: ImplicitEuler):
               cg=jnp.int32(0), bt=jnp.int32(0), alpha=z, res=z, conv=jnp.array(False))
     c = lax.while_loop(cond, body, c0)
     x = jnp.where(free > 0, c["x"], x0)
+    return x, c, jnp.linalg.norm(grad(x) * free)
+
+
+def _stationarity(u, theta):
+    """Root function of the step in the free unknowns ``u (N,3)`` (pinned entries 0).
+
+    ``F(u) = P grad g(P u + (1-P) x^n) + (1-P) u``: its Jacobian ``P H P + (1-P)`` is
+    symmetric, and its dependence on the pinned positions ``x^n`` is explicit.
+    """
+    cloth, x0 = theta[0], theta[1]
+    free = (~cloth.pinned)[:, None]
+    x = jnp.where(free, u, x0)
+    return jnp.where(free, jax.grad(incremental_potential)(x, theta), u)
+
+
+@functools.partial(jax.custom_jvp, nondiff_argnums=(0,))
+def _solution(integ, u_star, theta):
+    """Identity on the converged ``u_star``; its derivative is the implicit-function one.
+
+    ``du*/dtheta = -J^{-1} dF/dtheta`` with ``J = dF/du`` at the solution (one linear
+    solve with the exact Hessian, through ``lax.custom_linear_solve`` so reverse mode
+    transposes it as the same symmetric solve).  Nothing is differentiated through the
+    Newton or CG iterations.
+    """
+    return u_star
+
+
+@_solution.defjvp
+def _solution_jvp(integ, primals, tangents):
+    u_star, theta = primals
+    _, theta_dot = tangents
+    cloth, _, _, h = theta
+    rhs = jax.jvp(lambda th: _stationarity(u_star, th), (theta,), (theta_dot,))[1]
+
+    def matvec(w):
+        return jax.jvp(lambda u: _stationarity(u, theta), (u_star,), (w,))[1]
+
+    N = cloth.num_particles
+    if integ.resolved_solver(N) == "dense":
+        def solve(mv, b):
+            eye = jnp.eye(3 * N, dtype=b.dtype).reshape(3 * N, N, 3)
+            A = jax.vmap(mv)(eye).reshape(3 * N, 3 * N)
+            return jnp.linalg.solve(A, b.reshape(-1)).reshape(N, 3)
+    else:
+        free = (~cloth.pinned)[:, None].astype(u_star.dtype)
+        x = jnp.where(free > 0, u_star, theta[1])
+        Minv = _block_jacobi(cloth, en.element_blocks(cloth, x, _damping_terms(theta), project_psd=True), h, free)
+
+        def solve(mv, b):
+            return pcg(mv, b, jnp.zeros_like(b), Minv, tol=integ.cg_tol, max_iters=integ.cg_max_iters)[0]
+
+    du = lax.custom_linear_solve(matvec, rhs, solve, symmetric=True)
+    return u_star, -du
+
+
+def _implicit(cloth: Cloth, state: State, dt, integ: ImplicitEuler):
+    x0, v0 = state.x, state.v
+    h = dt
+    if not cloth.damped:  # the step must not read the damping leaf of an undamped scene
+        cloth = dataclasses.replace(cloth, damping=jnp.zeros((), x0.dtype))
+    theta = (cloth, x0, v0, h)
+    x_sol, c, gnorm = _newton(jax.tree_util.tree_map(lax.stop_gradient, theta), integ)
+    free = (~cloth.pinned)[:, None]
+    u = _solution(integ, jnp.where(free, x_sol, 0.0), theta)
+    x = jnp.where(free, u, x0)
     v = (x - x0) / h
     ok = ~c["fail"] & _bounded(cloth, x, v)
     x, v = jnp.where(ok, x, x0), jnp.where(ok, v, v0)
-    info = StepInfo(newton_iters=c["it"], cg_iters=c["cg"], grad_norm=jnp.linalg.norm(grad(x) * free),
-                    step_size=c["alpha"], backtracks=c["bt"], residual=c["res"], converged=c["conv"], stable=ok)
+    info = StepInfo(newton_iters=c["it"], cg_iters=c["cg"], grad_norm=gnorm, step_size=c["alpha"],
+                    backtracks=c["bt"], residual=c["res"], converged=c["conv"], stable=ok)
     return State(x, v), info
 
 
@@ -242,18 +334,30 @@ def step(cloth: Cloth, state: State, dt, integrator=ImplicitEuler()) -> tuple[St
     return _step(cloth, state, jnp.asarray(dt, cloth.dtype), integrator)
 
 
-@functools.partial(jax.jit, static_argnames=("n_steps", "integrator"))
-def _rollout(cloth, state, dt, n_steps, integrator):
+@functools.partial(jax.jit, static_argnames=("n_steps", "integrator", "checkpoint"))
+def _rollout(cloth, state, dt, n_steps, integrator, checkpoint=False):
     def f(s, _):
         s2, info = _step(cloth, s, dt, integrator)
         return s2, (s2, info)
 
+    if checkpoint:
+        f = jax.checkpoint(f, prevent_cse=False)
     _, (states, infos) = lax.scan(f, state, None, length=n_steps)
     return states, infos
 
 
-def rollout(cloth: Cloth, state: State, dt, n_steps: int, integrator=ImplicitEuler()) -> tuple[State, StepInfo]:
+def rollout(cloth: Cloth, state: State, dt, n_steps: int, integrator=ImplicitEuler(),
+            checkpoint: bool = False) -> tuple[State, StepInfo]:
     """``n_steps`` steps in one ``lax.scan``.
+
+    Differentiable end to end: implicit steps carry implicit-function derivatives (one
+    extra linear solve per step in reverse mode), explicit substeps are differentiated
+    through the scan.
+
+    Args:
+      checkpoint: rematerialise each step in reverse mode (``jax.checkpoint``), so the
+        backward pass keeps only the per-step states, ``O(T)`` of them, instead of every
+        step's linearisation.  No effect on values or on forward evaluation.
 
     Returns:
       ``(states, infos)`` stacked over a leading ``(n_steps,)`` axis (``states.x`` is
@@ -262,4 +366,4 @@ def rollout(cloth: Cloth, state: State, dt, n_steps: int, integrator=ImplicitEul
     check_inputs(cloth, state, dt, integrator)
     if not (isinstance(n_steps, (int, np.integer)) and n_steps >= 1):
         raise ValueError(f"n_steps must be an int >= 1, got {n_steps!r}")
-    return _rollout(cloth, state, jnp.asarray(dt, cloth.dtype), int(n_steps), integrator)
+    return _rollout(cloth, state, jnp.asarray(dt, cloth.dtype), int(n_steps), integrator, bool(checkpoint))

@@ -17,13 +17,15 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
+from .. import _sharding
 from .._dataclass import is_concrete
 from .._validate import check_finite
 from . import _joints, _quat
 from ._ccd import ccd_sweep
 from ._chain import Chain
 from ._fabrik import fabrik_sweep, rotations_from_positions, straight_towards
-from ._fk import fk_joints
+from ._fk import fk, fk_joints
+from ._implicit import implicit_rotations
 from ._result import IKResult
 
 SOLVERS = ("ccd", "fabrik")
@@ -181,18 +183,30 @@ def check_settings(chain, solver, max_iters, tol):
         raise ValueError(f"tol must be a finite scalar >= 0, got {tol!r}")
 
 
-def _solve(kind, chain, target, rotations, *, max_iters, tol, trace, unroll, early_exit=False):
+def _solve(kind, chain, target, rotations, *, max_iters, tol, trace, unroll, early_exit=False, implicit_diff=False,
+           sharded=False):
     check_settings(chain, kind, max_iters, tol)
     dtype = chain.offsets.dtype
-    target = jnp.asarray(target, dtype)
+    target = target_in = jnp.asarray(target, dtype)
     rotations = chain.rest_rotations() if rotations is None else jnp.asarray(rotations, dtype)
     _check_target_and_rotations(chain, target, rotations)
     batch = jnp.broadcast_shapes(target.shape[:-1], rotations.shape[:-2])
     target = jnp.broadcast_to(target, batch + (3,))
     rotations = jnp.broadcast_to(rotations, batch + rotations.shape[-2:])
+    n = int(np.prod(batch))
+    mesh = _sharding.batch_mesh(sharded, n) if batch else None
+    if mesh is not None:  # split the flattened batch over the local devices
+        (tflat, rflat), pad = _sharding.shard_leading((target.reshape(n, 3), rotations.reshape((n,) + rotations.shape[-2:])), mesh, n)
+        res = _solve(kind, chain, tflat, rflat, max_iters=max_iters, tol=tol, trace=trace, unroll=unroll,
+                     early_exit=early_exit, implicit_diff=implicit_diff, sharded=False)
+        res = _sharding.unpad(res, pad)
+        return jax.tree_util.tree_map(lambda a: a.reshape(batch + a.shape[1:]), res)
     J = chain.num_joints
+    offsets = chain.offsets
+    if implicit_diff:  # the sweeps are not differentiated; see _implicit
+        offsets, target, rotations = (lax.stop_gradient(a) for a in (offsets, target, rotations))
     local, P, err, iters, conv, reachable, errs = _run(
-        chain.offsets,
+        offsets,
         jnp.moveaxis(target, -1, 0),
         jnp.moveaxis(rotations, (-2, -1), (0, 1)),
         jnp.asarray(tol, dtype),
@@ -202,9 +216,17 @@ def _solve(kind, chain, target, rotations, *, max_iters, tol, trace, unroll, ear
         trace=bool(trace),
         early_exit=bool(early_exit),
     )
+    local, P = jnp.moveaxis(local, (0, 1), (-2, -1)), jnp.moveaxis(P, (0, 1), (-2, -1))
+    if implicit_diff:
+        ift = implicit_rotations
+        for _ in batch:
+            ift = jax.vmap(ift, in_axes=(0, None, 0, 0))
+        local = ift(local, chain.offsets, jnp.broadcast_to(jnp.asarray(target_in, dtype), batch + (3,)), reachable)
+        P = fk(chain, local).positions
+        err = jnp.sqrt(jnp.sum((P[..., -1, :] - jnp.asarray(target_in, dtype)) ** 2, axis=-1))
     return IKResult(
-        rotations=jnp.moveaxis(local, (0, 1), (-2, -1)),
-        positions=jnp.moveaxis(P, (0, 1), (-2, -1)),
+        rotations=local,
+        positions=P,
         error=err,
         iterations=iters,
         converged=conv,
@@ -214,7 +236,7 @@ def _solve(kind, chain, target, rotations, *, max_iters, tol, trace, unroll, ear
 
 
 def ccd(chain: Chain, target, rotations=None, *, max_iters: int = 100, tol=1e-4,
-        trace: bool = True, unroll: bool | None = None) -> IKResult:
+        trace: bool = True, unroll: bool | None = None, implicit_diff: bool = False) -> IKResult:
     """Cyclic coordinate descent IK.
 
     Args:
@@ -225,25 +247,33 @@ def ccd(chain: Chain, target, rotations=None, *, max_iters: int = 100, tol=1e-4,
       tol: stop when ``|end - target| <= tol`` (scene units).
       trace: also return the per-sweep error ``trace (..., max_iters)``.
       unroll: unroll the loop over joints (default: ``J <= 16`` and a batch of >= 256).
+      implicit_diff: differentiate the returned solution by the implicit function
+        theorem at the solution (``jaxsim.ik._implicit``) instead of through the
+        unrolled sweeps: no memory per sweep, least-change rotations derivative.
 
     Returns:
-      ``IKResult``.  Sweeps after convergence are masked no-ops.
+      ``IKResult``.  Sweeps after convergence are masked no-ops.  By default ``jax.grad``
+      and ``jax.jvp`` differentiate through every sweep of the scan (with respect to the
+      target, ``chain.offsets`` and the start rotations).
     """
-    return _solve("ccd", chain, target, rotations, max_iters=max_iters, tol=tol, trace=trace, unroll=unroll)
+    return _solve("ccd", chain, target, rotations, max_iters=max_iters, tol=tol, trace=trace, unroll=unroll,
+                  implicit_diff=implicit_diff)
 
 
 def fabrik(chain: Chain, target, rotations=None, *, max_iters: int = 100, tol=1e-4,
-           trace: bool = True, unroll: bool | None = None) -> IKResult:
+           trace: bool = True, unroll: bool | None = None, implicit_diff: bool = False) -> IKResult:
     """FABRIK IK (Aristidou & Lasenby 2011), with rotations rebuilt from the positions.
 
     Arguments and result as for :func:`ccd`.  An unreachable target gets the straight
     chain towards it after one sweep, with ``converged=False``.
     """
-    return _solve("fabrik", chain, target, rotations, max_iters=max_iters, tol=tol, trace=trace, unroll=unroll)
+    return _solve("fabrik", chain, target, rotations, max_iters=max_iters, tol=tol, trace=trace, unroll=unroll,
+                  implicit_diff=implicit_diff)
 
 
 def solve(chain: Chain, targets, *, solver: str = "fabrik", rotations=None, max_iters: int = 100,
-          tol=1e-4, trace: bool = False, unroll: bool | None = None, early_exit: bool = False) -> IKResult:
+          tol=1e-4, trace: bool = False, unroll: bool | None = None, early_exit: bool = False,
+          implicit_diff: bool = False, sharded: bool | None = None) -> IKResult:
     """Batched IK over any leading shape of ``targets (..., 3)``.
 
     ``rotations`` may be ``(J, 4)`` (shared start pose) or ``(..., J, 4)``.  The batch
@@ -254,7 +284,12 @@ def solve(chain: Chain, targets, *, solver: str = "fabrik", rotations=None, max_
     every element of the batch is done, instead of the fixed-length scan.  Results are
     identical; it is much faster when ``tol > 0`` and most targets converge well before
     ``max_iters``, but it supports forward-mode differentiation only (``jax.grad``
-    needs the default scan).
+    needs the default scan, or ``implicit_diff=True``, which never differentiates the
+    sweeps and so combines with ``early_exit``).
+
+    ``sharded=None`` splits the batch across all local devices when there are several
+    (``jax.sharding.NamedSharding`` over a 1-D mesh; see ``jaxsim._sharding``); on one
+    device it does nothing.  ``True`` insists, ``False`` keeps the batch on one device.
     """
     return _solve(solver, chain, targets, rotations, max_iters=max_iters, tol=tol, trace=trace,
-                  unroll=unroll, early_exit=early_exit)
+                  unroll=unroll, early_exit=early_exit, implicit_diff=implicit_diff, sharded=sharded)

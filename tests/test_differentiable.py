@@ -1,0 +1,186 @@
+"""Gradients through IK and cloth (float64), inverse problems, and NaN-free derivatives."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from jax.test_util import check_grads
+
+from jaxsim import cloth as C
+from jaxsim import ik, optim
+
+# ---- IK: implicit-function derivatives against the unrolled ones ----
+
+
+@pytest.mark.parametrize("solver", ["ccd", "fabrik"])
+def test_ik_implicit_gradient_equals_unrolled_at_converged_solution(solver):
+    arm = ik.lab_arm()
+
+    def jacobians(t, off, iters, out):
+        def f(t, off, implicit):
+            r = ik.solve(ik.Chain(off), t, solver=solver, max_iters=iters, tol=0.0, implicit_diff=implicit)
+            return r.positions[-1] if out == "end" else r.positions
+
+        unrolled = jax.jacfwd(f, argnums=(0, 1))(t, off, False)
+        implicit = jax.jacrev(f, argnums=(0, 1))(t, off, True)
+        return unrolled, implicit
+
+    t = jnp.array([0.6, 0.3, 0.4])
+    assert float(ik.solve(arm, t, solver=solver, max_iters=100, tol=0.0).error) < 1e-12
+    unrolled, implicit = jax.jit(jacobians, static_argnums=(2, 3))(t, arm.offsets, 100, "end")
+    for u, i in zip(unrolled, implicit):
+        np.testing.assert_allclose(i, u, atol=1e-6)
+    np.testing.assert_allclose(implicit[0], np.eye(3), atol=1e-9)  # d end / d target = I when reachable
+
+    # unreachable: every joint position is unique (the straight chain), so compare all of them
+    far = jnp.array([2.5, 1.0, -2.0])
+    unrolled, implicit = jax.jit(jacobians, static_argnums=(2, 3))(far, arm.offsets, 100 if solver == "fabrik" else 3000, "all")
+    for u, i in zip(unrolled, implicit):
+        np.testing.assert_allclose(i, u, atol=1e-6)
+    assert np.abs(np.asarray(implicit[0])).max() > 0.1  # not trivially zero
+
+
+@pytest.mark.parametrize("solver", ["ccd", "fabrik"])
+def test_ik_implicit_gradients_finite_at_singular_poses(solver):
+    arm = np.asarray(ik.lab_arm().offsets)
+    straight = np.asarray(ik.straight_chain([1.0, 1.0, 1.0, 1.0], direction=(0, 0, 1)).offsets)
+    cases = [(arm, [0.0, 1.7, 0.0]), (straight, [0.0, 0.0, 1.5]), (straight, [0.0, 0.0, 5.0])]
+    offsets = jnp.asarray(np.stack([c[0] for c in cases]))
+    targets = jnp.asarray(np.array([c[1] for c in cases]))
+
+    def loss(t, off):
+        r = ik.solve(ik.Chain(off), t, solver=solver, max_iters=50, implicit_diff=True)
+        return jnp.sum(r.positions[-1]) + jnp.sum(r.rotations)
+
+    g = jax.jit(jax.vmap(jax.grad(loss, argnums=(0, 1))))(targets, offsets)
+    assert all(np.all(np.isfinite(np.asarray(x))) for x in g)
+
+
+def test_ik_bone_lengths_recovered_from_reach_data():
+    """Inverse problem 1: lengths from the end positions a chain reached (gradient descent)."""
+    true = np.array([0.8, 0.4, 0.2, 1.2])
+    rng = np.random.default_rng(1)
+    root = np.array([0.0, 1.7, 0.0])
+    axis = rng.normal(size=(32, 5, 3)) * 0.4
+    ang = np.linalg.norm(axis, axis=-1, keepdims=True)
+    start = np.concatenate([np.cos(ang / 2), np.sin(ang / 2) * axis / ang], -1)  # known start poses
+
+    def offsets(lengths):
+        z = jnp.zeros_like(lengths)
+        return jnp.concatenate([jnp.asarray(root)[None], jnp.stack([z, -lengths, z], -1)])
+
+    targets = np.asarray(ik.fk(ik.Chain(offsets(jnp.asarray(true))), start).positions[:, -1]) + 0.3 * rng.normal(size=(32, 3))
+
+    def reached(lengths):  # the solver with a fixed budget of 2 CCD sweeps
+        r = ik.solve(ik.Chain(offsets(lengths)), targets, solver="ccd", rotations=start, max_iters=2, tol=0.0)
+        return r.positions[:, -1]  # = fk(rotations)
+
+    observed = reached(jnp.asarray(true))
+    fit = optim.adam(lambda l: jnp.mean(jnp.sum((reached(l) - observed) ** 2, -1)), jnp.full(4, 0.65),
+                     steps=2000, lr=0.02, final_lr=0.002)
+    np.testing.assert_allclose(fit.params, true, atol=1e-3)
+    assert fit.history[-1] < 1e-3 * fit.history[0]
+
+
+# ---- cloth: implicit differentiation of a step, checked against finite differences ----
+
+
+@pytest.fixture(scope="module")
+def small():
+    c = C.grid(3, 0.2, damping=0.5, pins=[0, 3])
+    x = np.asarray(c.rest) + 0.02 * np.random.default_rng(0).normal(size=c.rest.shape)
+    v = 0.1 * np.random.default_rng(1).normal(size=c.rest.shape)
+    return c, jnp.asarray(x), jnp.asarray(v)
+
+
+@pytest.mark.parametrize("solver", ["dense", "cg"])
+def test_cloth_step_gradients_check_grads(small, solver):
+    c, x, v = small
+    integ = C.ImplicitEuler(solver=solver, tol=1e-12, cg_tol=1e-12)
+
+    def out(x0, v0, k, k_spring, mass, rest_length):
+        scene = C.replace(c, stiffness=k * k_spring, mass=mass, rest_length=rest_length)
+        s, _ = C.step(scene, C.State(x0, v0), 1 / 60, integ)
+        return jnp.concatenate([s.x.ravel(), s.v.ravel()])
+
+    args = (x, v, jnp.float64(1.0), c.stiffness, c.mass, c.rest_length)
+    check_grads(out, args, order=1, modes=("fwd", "rev"), atol=1e-5, rtol=1e-5, eps=1e-6)
+    # the pinned positions carry the pins: d x_pin / d x0_pin = I, exactly
+    J = jax.jacrev(lambda x0: out(x0, *args[1:])[: x.size].reshape(x.shape)[0])(x)
+    np.testing.assert_array_equal(np.asarray(J[:, 0]), np.eye(3))
+
+
+def test_rollout_gradient_with_and_without_checkpoint(small):
+    c, x, v = small
+    s0 = C.State(x, v)
+
+    def loss(k, checkpoint):
+        states, _ = C.rollout(C.replace(c, stiffness=k), s0, 1 / 60, 30, checkpoint=checkpoint)
+        return jnp.sum(states.x[-1] ** 2) + jnp.sum(states.v[10])
+
+    g0 = jax.grad(loss)(120.0, False)
+    g1 = jax.grad(loss)(120.0, True)
+    np.testing.assert_allclose(g1, g0, rtol=1e-10)
+    eps = 1e-4
+    fd = (loss(120.0 + eps, False) - loss(120.0 - eps, False)) / (2 * eps)
+    np.testing.assert_allclose(g0, fd, rtol=1e-6)
+    mem = [jax.jit(jax.grad(loss), static_argnums=1).lower(120.0, ck).compile().memory_analysis().temp_size_in_bytes
+           for ck in (False, True)]
+    assert mem[1] < mem[0], mem
+
+
+def test_cloth_gradients_finite_at_zero_length_spring_and_fully_pinned():
+    # a spring of rest length 0.2 whose two particles start at the same point
+    scene = C.Cloth(rest=np.array([[0.0, 0, 0], [0.0, 0, 0], [0.2, 0, 0]]), springs=np.array([[0, 1], [1, 2]]),
+                    rest_length=np.array([0.2, 0.2]), stiffness=np.array([100.0, 100.0]), mass=np.ones(3),
+                    pinned=np.array([True, False, False]), gravity=np.array([0.0, -9.8, 0.0]), damping=np.asarray(0.3))
+    s0 = C.State.at_rest(scene)
+    for integ in (C.ImplicitEuler(solver="dense"), C.ImplicitEuler(solver="cg"), C.ExplicitEuler(substeps=4)):
+        def loss(x0, k):
+            s, info = C.step(C.replace(scene, stiffness=k), C.State(x0, s0.v), 1 / 60, integ)
+            return jnp.sum(s.x ** 2) + jnp.sum(s.v), info
+
+        (val, info), g = jax.value_and_grad(loss, argnums=(0, 1), has_aux=True)(s0.x, scene.stiffness)
+        assert np.isfinite(float(val)) and bool(info.stable)
+        assert all(np.all(np.isfinite(np.asarray(a))) for a in g), integ
+
+    pinned = C.grid(2, 0.2, pins=list(range(9)))
+    s0 = C.State.at_rest(pinned)
+    for integ in (C.ImplicitEuler(solver="dense"), C.ImplicitEuler(solver="cg")):
+        J = jax.jacrev(lambda x0: C.step(pinned, C.State(x0, s0.v), 1 / 60, integ)[0].x)(s0.x)
+        np.testing.assert_array_equal(np.asarray(J).reshape(27, 27), np.eye(27))
+
+
+# ---- cloth inverse problems ----
+
+
+def test_cloth_stiffness_and_damping_recovered_from_motion():
+    """Inverse problem 2: k = 150, d = 0.5 from 2 s of lab-cloth motion, starting at k = 50, d = 0.1."""
+    c = C.lab_cloth()
+    s0 = C.State.at_rest(c)
+
+    def motion(log_kd):
+        scene = C.replace(c, stiffness=jnp.exp(log_kd[0]), damping=jnp.exp(log_kd[1]))
+        return C.rollout(scene, s0, 1 / 60, 120, checkpoint=True)[0].x
+
+    observed = motion(jnp.log(jnp.array([150.0, 0.5])))
+    fit = optim.levenberg_marquardt(lambda p: motion(p) - observed, jnp.log(jnp.array([50.0, 0.1])), steps=40, tol=1e-18)
+    k, d = np.exp(np.asarray(fit.params))
+    assert abs(k / 150 - 1) < 0.01 and abs(d / 0.5 - 1) < 0.01, (k, d, fit.history)
+
+
+def test_cloth_control_initial_velocity_reaches_goal():
+    """Inverse problem 3: the initial velocities that put the free corner at a goal at t = 1 s."""
+    c = C.lab_cloth()
+    s0 = C.State.at_rest(c)
+    corner = 120  # free corner of the last row
+    goal = np.asarray(c.rest[corner]) + np.array([-0.3, 0.4, 0.2])
+
+    def miss(v0):
+        states, _ = C.rollout(c, C.State(s0.x, v0), 1 / 60, 60, checkpoint=True)
+        return states.x[-1, corner] - goal
+
+    assert float(jnp.linalg.norm(miss(s0.v))) > 0.4
+    fit = optim.levenberg_marquardt(miss, jnp.zeros_like(s0.x), steps=20, tol=1e-16, damping=1e-6)
+    assert fit.converged and float(jnp.linalg.norm(miss(fit.params))) < 1e-7
+    assert np.all(np.asarray(fit.params)[np.asarray(c.pinned)] == 0)  # pins get no velocity
