@@ -1,6 +1,5 @@
 """Execute every notebook headless in its reduced-size mode (``JAXSIM_NOTEBOOK_FAST=1``)."""
 
-import os
 import pathlib
 
 import pytest

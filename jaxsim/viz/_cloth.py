@@ -12,8 +12,6 @@ def _segments(springs, x):
 
 
 def _setup(ax, cloth, xs):
-    from mpl_toolkits.mplot3d.art3d import Line3DCollection  # noqa: F401  (registers 3D)
-
     pts = np.asarray(xs).reshape(-1, 3)
     lo, hi = pts.min(0), pts.max(0)
     c, r = 0.5 * (lo + hi), 0.55 * max(np.max(hi - lo), 1e-3)
