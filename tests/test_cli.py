@@ -19,9 +19,9 @@ def test_demo_fast_writes_summary(tmp_path):
     stems = [f"ik_{c}" for c in curves.CURVES] + ["ik_circle_ccd", "cloth"]
     for stem in stems:
         png, gif = Image.open(out / f"{stem}.png"), Image.open(out / f"{stem}.gif")
-        assert png.format == "PNG" and gif.format == "GIF" and gif.n_frames >= 10, stem
+        assert png.format == "PNG" and gif.format == "GIF" and gif.n_frames >= 7, stem
         assert f"{stem}.gif" in text
-    assert Image.open(out / "cloth.gif").n_frames == 11  # 61 states, every 6th in --fast
+    assert Image.open(out / "cloth.gif").n_frames == 7  # 61 states, every 10th in --fast
 
 
 def test_help_lists_commands():

@@ -34,7 +34,7 @@ def _ik_section(out: str, fast: bool, lines: list[str]) -> None:
         stem = f"ik_{name}" + ("" if solver == "fabrik" else f"_{solver}")
         title = f"{name}, {solver}"
         viz.save(viz.plot_tracking(res, targets, title=title), os.path.join(out, stem + ".png"))
-        stride = 5 if fast else (2 if len(targets) > 200 else 1)
+        stride = 10 if fast else (2 if len(targets) > 200 else 1)
         viz.animate_tracking(res, targets, os.path.join(out, stem + ".gif"), stride=stride, title=title)
         it = np.asarray(res.iterations)
         lines.append(f"| {name} | {solver} | {len(targets)} | {it.mean():.2f} | {it.max()} | "
@@ -59,7 +59,7 @@ def _cloth_section(out: str, fast: bool, lines: list[str]) -> None:
     rep = cloth.energy_report(c, s0, states, infos)
     print("[demo] cloth: drawing cloth.gif ...", flush=True)
     xs = np.concatenate([np.asarray(s0.x)[None], np.asarray(states.x)])
-    viz.animate_cloth(c, xs, os.path.join(out, "cloth.gif"), stride=6 if fast else 2, fps=30, title="lab cloth")
+    viz.animate_cloth(c, xs, os.path.join(out, "cloth.gif"), stride=10 if fast else 2, fps=30, title="lab cloth")
     viz.save(viz.plot_cloth(c, xs[-1], title=f"lab cloth after {seconds:g} s"), os.path.join(out, "cloth.png"))
     lines += ["## Cloth: the lab cloth hanging from its two pinned corners", "",
               "| steps | ms/step | compile (s) | mean Newton | mean CG | all converged | stable | energy start (J) | energy end (J) | files |",
