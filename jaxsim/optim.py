@@ -74,8 +74,7 @@ def levenberg_marquardt(residual, params, *, steps: int = 50, tol: float = 1e-20
     res = lambda x: jnp.ravel(residual(unravel(x)))  # noqa: E731
     m = jax.eval_shape(res, x).shape[0]
     jac = jax.jacfwd(res) if x.shape[0] <= m else jax.jacrev(res)
-    f = jax.jit(lambda x: (res(x), jac(x)))
-    cost_only = jax.jit(lambda x: jnp.sum(res(x) ** 2))
+    f = jax.jit(lambda x: (res(x), jac(x)))  # one compiled function, also for trial points
     lam, hist = damping, []
     r, J = f(x)
     cost = float(r @ r)
@@ -87,11 +86,10 @@ def levenberg_marquardt(residual, params, *, steps: int = 50, tol: float = 1e-20
             dx = jnp.linalg.solve(A + lam * jnp.diag(jnp.diag(A) + 1e-30), -J.T @ r)
         else:  # fewer residuals than parameters: the minimum-norm step
             dx = -J.T @ jnp.linalg.solve(J @ J.T + lam * jnp.eye(m, dtype=J.dtype), r)
-        new = float(cost_only(x + dx))
+        r_new, J_new = f(x + dx)
+        new = float(r_new @ r_new)
         if new < cost:
-            x, lam = x + dx, max(lam / 3.0, 1e-12)
-            r, J = f(x)
-            cost = float(r @ r)
+            x, lam, r, J, cost = x + dx, max(lam / 3.0, 1e-12), r_new, J_new, new
         else:
             lam *= 4.0
         hist.append(cost)

@@ -38,8 +38,6 @@ SCRIPT = textwrap.dedent("""
     ys, _ = cloth.batch_rollout(scenes, s0, 1 / 60, 20, sharded=False)
     assert len(xs.x.sharding.device_set) == 4 and xs.x.sharding.shard_shape(xs.x.shape)[0] == 2
     assert np.max(np.abs(np.asarray(xs.x) - np.asarray(ys.x))) <= 1e-6
-    one, _ = cloth.rollout(scenes[5], s0, 1 / 60, 20)
-    assert np.max(np.abs(np.asarray(xs.x[5]) - np.asarray(one.x))) <= 1e-6
     assert bool(np.all(np.asarray(infos.converged)))
     print("OK")
 """)

@@ -28,10 +28,13 @@ def stack_scenes(scenes: Sequence[Cloth]) -> Cloth:
     for s in scenes[1:]:
         if (s.num_particles, s.num_springs, s.damped, s.dtype) != (first.num_particles, first.num_springs, first.damped, first.dtype):
             raise ValueError("scenes differ in particle or spring count, dtype or damped flag; they cannot be batched")
-    return _unchecked(first, {f: jnp.stack([getattr(s, f) for s in scenes]) for f in _LEAVES})
+    D = max(s.incidence.shape[1] for s in scenes)
+    inc = [jnp.pad(s.incidence, ((0, 0), (0, D - s.incidence.shape[1]))) for s in scenes]
+    leaves = {f: jnp.stack([getattr(s, f) for s in scenes]) for f in _LEAVES if f != "incidence"}
+    return _unchecked(first, {**leaves, "incidence": jnp.stack(inc)})
 
 
-_LEAVES = ("rest", "springs", "rest_length", "stiffness", "mass", "pinned", "gravity", "damping")
+_LEAVES = ("rest", "springs", "rest_length", "stiffness", "mass", "pinned", "gravity", "damping", "incidence")
 
 
 def _unchecked(like: Cloth, leaves: dict) -> Cloth:

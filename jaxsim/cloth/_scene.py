@@ -28,6 +28,11 @@ class Cloth:
       damping: ``()`` along-spring damping coefficient ``d`` (N·s/m), >= 0.
       damped: static flag, ``damping != 0`` at construction; when False the compiled
         step holds no damping code at all.
+      incidence: ``(N, D)`` int32, derived from ``springs`` at construction (leave it
+        ``None``): entry ``s + 1`` where particle ``n`` is spring ``s``'s second end,
+        ``-(s + 1)`` where it is the first, 0 as padding (``D`` = largest degree).  It
+        lets the CG operator sum spring forces per particle by gathering instead of a
+        scatter-add.
 
     Raises:
       ValueError: on wrong shapes, non-finite values, non-positive masses or rest
@@ -43,6 +48,7 @@ class Cloth:
     gravity: jax.Array
     damping: jax.Array
     damped: bool = static_field(default=True)
+    incidence: jax.Array | None = None
 
     def __post_init__(self):
         leaves = (self.rest, self.springs, self.rest_length, self.stiffness, self.mass, self.pinned,
@@ -88,6 +94,7 @@ class Cloth:
         set_(self, "gravity", as_float(g, dtype))
         set_(self, "damping", as_float(d, dtype))
         set_(self, "damped", bool(self.damped) and float(d) != 0.0)
+        set_(self, "incidence", jnp.asarray(incidence(np.asarray(springs), N)))
 
     @property
     def num_particles(self) -> int:
@@ -118,6 +125,41 @@ class State:
     def at_rest(cloth: Cloth) -> "State":
         """Rest positions with zero velocity."""
         return State(cloth.rest, jnp.zeros_like(cloth.rest))
+
+
+def incidence(springs: np.ndarray, n_particles: int) -> np.ndarray:
+    """Signed spring ids per particle, ``(N, D)`` int32 (see ``Cloth.incidence``)."""
+    springs = np.asarray(springs).reshape(-1, 2)
+    S = len(springs)
+    ends = np.concatenate([springs[:, 1], springs[:, 0]])
+    code = np.concatenate([np.arange(1, S + 1), -np.arange(1, S + 1)]).astype(np.int32)
+    order = np.argsort(ends, kind="stable")
+    ends, code = ends[order], code[order]
+    deg = np.bincount(ends, minlength=n_particles)
+    D = max(int(deg.max()) if S else 0, 1)
+    slot = np.arange(len(ends)) - np.repeat(np.cumsum(deg) - deg, deg)
+    out = np.zeros((n_particles, D), np.int32)
+    out[ends, slot] = code
+    return out
+
+
+def spring_sum(cloth: Cloth, f, signed: bool = True):
+    """Per-particle sums of per-spring values ``f (S, ...)`` -> ``(N, ...)``.
+
+    ``signed``: ``+f_s`` at each spring's second end and ``-f_s`` at its first (the
+    assembly of spring forces); otherwise ``+f_s`` at both ends (the block diagonal).
+    Gathers through ``cloth.incidence`` when present, else scatter-adds.
+    """
+    i, j = cloth.springs[:, 0], cloth.springs[:, 1]
+    if f.shape[0] == 0:
+        return jnp.zeros((cloth.num_particles,) + f.shape[1:], f.dtype)
+    if cloth.incidence is None:
+        out = jnp.zeros((cloth.num_particles,) + f.shape[1:], f.dtype).at[j].add(f)
+        return out.at[i].add(-f if signed else f)
+    inc = cloth.incidence
+    w = (jnp.sign(inc) if signed else jnp.abs(jnp.sign(inc))).astype(f.dtype)
+    g = f[jnp.maximum(jnp.abs(inc) - 1, 0)]  # (N, D, ...)
+    return jnp.einsum("nd,nd...->n...", w, g)
 
 
 def pin_mask(n_particles: int, ids) -> np.ndarray:
@@ -204,4 +246,6 @@ def replace(cloth: Cloth, **kw) -> Cloth:
             kw[name] = jnp.full(shape, kw[name], cloth.dtype)
     if "damping" in kw and "damped" not in kw:
         kw["damped"] = True
+    if "springs" in kw and "incidence" not in kw:
+        kw["incidence"] = None  # recomputed from the new springs
     return dataclasses.replace(cloth, **kw)

@@ -15,7 +15,7 @@ from .._validate import check_finite, check_shape
 from . import _energy as en
 from ._integrators import ExplicitEuler, ImplicitEuler
 from ._linsolve import block_inverse, dense_solve, pcg
-from ._scene import Cloth, State
+from ._scene import Cloth, State, spring_sum
 
 #: Armijo constants of the backtracking line search (lab Algorithm 2).
 BETA, GAMMA = 0.5, 1e-4
@@ -112,9 +112,7 @@ def _damping_terms(theta):
 
 def _block_jacobi(cloth, A, h, free):
     """``r -> D^{-1} r`` with ``D`` the 3x3 diagonal blocks of ``M/h^2 + sum_s A_s`` (identity on pins)."""
-    N = cloth.num_particles
-    i, j = cloth.springs[:, 0], cloth.springs[:, 1]
-    D = jnp.zeros((N, 3, 3), A.dtype).at[i].add(A).at[j].add(A)
+    D = spring_sum(cloth, A, signed=False)
     D = D + (cloth.mass / h**2)[:, None, None] * jnp.eye(3, dtype=A.dtype)
     D = jnp.where(free[:, :, None] > 0, D, jnp.broadcast_to(jnp.eye(3, dtype=A.dtype), D.shape))
     Dinv = block_inverse(D)
@@ -156,7 +154,7 @@ def _newton(theta, integ: ImplicitEuler):
             def apply_H(p):
                 p = p * free
                 f = jnp.einsum("sab,sb->sa", A, p[spr_j] - p[spr_i])
-                Hp = jnp.zeros_like(p).at[spr_j].add(f).at[spr_i].add(-f)
+                Hp = spring_sum(cloth, f)
                 return (Hp + m / h**2 * p) * free + (1.0 - free) * p
             diag_src = A
         else:
