@@ -59,8 +59,22 @@ def cloth_table():
     return "\n".join(out)
 
 
+def scaling_table():
+    d = load("scaling")
+    out = ["| forced host devices | IK M solves/s (100k targets) | IK speed-up | IK weak-scaling efficiency | "
+           "cloth scene-steps/s (8 scenes) | cloth speed-up | cloth weak-scaling efficiency |", "|---|---|---|---|---|---|---|"]
+    for r in d["summary"]:
+        out.append(f"| {r['devices']} | {r['ik_strong_M_per_s']:.2f} | {r['ik_strong_speedup']:.2f} | {r['ik_weak_efficiency']:.2f} | "
+                   f"{r['cloth_strong_scene_steps_per_s']:.0f} | {r['cloth_strong_speedup']:.2f} | {r['cloth_weak_efficiency']:.2f} |")
+    one = d["raw"][0]
+    out += ["", f"One device, default `sharded=None` against `sharded=False` (the same code path, no placement): "
+            f"IK {one['ik_strong']['run_s'] / one['ik_unsharded_baseline']['run_s']:.2f}x the time, cloth "
+            f"{one['cloth_strong']['run_s'] / one['cloth_unsharded_baseline']['run_s']:.2f}x (run-to-run noise)."]
+    return "\n".join(out)
+
+
 if __name__ == "__main__":
-    which = sys.argv[1:] or ["ik", "stability", "cloth"]
+    which = sys.argv[1:] or ["ik", "stability", "cloth", "scaling"]
     for w in which:
-        print({"ik": ik_table, "stability": stability_table, "cloth": cloth_table}[w]())
+        print({"ik": ik_table, "stability": stability_table, "cloth": cloth_table, "scaling": scaling_table}[w]())
         print()

@@ -164,8 +164,9 @@ def test_check_grads_end_position(solver):
     rest = np.asarray(random_unit_quaternions(np.random.default_rng(5), (5,)) * 0.05 + np.array([1.0, 0, 0, 0]))
     rest = rest / np.linalg.norm(rest, axis=-1, keepdims=True)
 
-    def end(target, offsets, rots):
-        return f(ik.Chain(offsets), target, rots, max_iters=6, tol=0.0, trace=False).positions[-1]
+    def end(target, offsets, rots):  # the end position and the solution's rotations
+        r = f(ik.Chain(offsets), target, rots, max_iters=6, tol=0.0, trace=False)
+        return jnp.concatenate([r.positions[-1], r.rotations.ravel()])
 
     args = (jnp.array([0.5, 0.2, 0.3]), arm.offsets, jnp.asarray(rest))
     check_grads(end, args, order=1, modes=("fwd", "rev"), atol=1e-5, rtol=1e-5, eps=1e-6)

@@ -33,7 +33,7 @@ def pareto(doc: Doc) -> None:
     dt, T = 1 / 60, 60
     subs = (1, 100) if quick else (1, 3, 10, 30, 100, 300, 1000)
     cg_tols = (1e-2, 1e-6) if quick else (1e-2, 1e-4, 1e-6, 1e-8)
-    ref_subs = 500 if quick else 8000
+    ref_subs = 500 if quick else 4000
     doc.md("## Cloth 1. Error against run time per step",
            f"Each scene first hangs for 0.5 s (30 converged implicit steps); from that moving state every method runs "
            f"{T} steps of dt = 1/60 s (1 s).  (a) **solver error**: max position error after one step against the "

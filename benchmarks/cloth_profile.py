@@ -1,0 +1,63 @@
+"""Where a converged implicit cloth step spends its time: the pieces of one Newton iteration.
+
+Scene: the B 32x32 grid (lab parameters), float64, positions perturbed by 1 cm.  Each piece
+is jit-compiled alone and timed warm (median of repeats, compile apart), next to the
+baseline of an elementwise no-op on the same array.
+
+Run: ``python benchmarks/cloth_profile.py``; writes ``benchmarks/results/cloth_profile.json``.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+import jax.numpy as jnp  # noqa: E402
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from _common import time_call, write  # noqa: E402
+
+from jaxsim import cloth as C  # noqa: E402
+from jaxsim.cloth import _energy as en  # noqa: E402
+from jaxsim.cloth._scene import spring_sum  # noqa: E402
+from jaxsim.cloth._step import _block_jacobi, incremental_potential  # noqa: E402
+
+
+def main() -> None:
+    c = C.grid(31, 0.2)
+    s = C.State.at_rest(c)
+    x = s.x + 0.01 * jax.random.normal(jax.random.PRNGKey(0), s.x.shape)
+    theta = (c, s.x, s.v, jnp.asarray(1 / 60))
+    i, j = c.springs[:, 0], c.springs[:, 1]
+    A = en.element_blocks(c, x, None, project_psd=True)
+    free = (~c.pinned)[:, None].astype(x.dtype)
+
+    def analytic_blocks(x):
+        d = x[j] - x[i]
+        l = jnp.linalg.norm(d, axis=-1)
+        e = d / l[:, None]
+        eeT = e[:, :, None] * e[:, None, :]
+        return c.stiffness[:, None, None] * eeT + jnp.maximum(c.stiffness * (1 - c.rest_length / l), 0)[:, None, None] * (jnp.eye(3) - eeT)
+
+    pieces = {
+        "no-op (x + 1)": (lambda x: x + 1.0, x),
+        "objective g(x)": (lambda x: incremental_potential(x, theta), x),
+        "gradient of g": (lambda x: jax.grad(incremental_potential)(x, theta), x),
+        "spring blocks by jax.hessian (+ PSD)": (lambda x: en.element_blocks(c, x, None, project_psd=True), x),
+        "spring blocks, closed form (reference only)": (analytic_blocks, x),
+        "CG operator H p (gather)": (lambda p: spring_sum(c, jnp.einsum("sab,sb->sa", A, p[j] - p[i])), x),
+        "block-Jacobi setup + apply": (lambda A: _block_jacobi(c, A, 1 / 60, free)(x), A),
+    }
+    rows = []
+    for name, (f, arg) in pieces.items():
+        t = time_call(jax.jit(f), arg, repeats=50)
+        rows.append({"piece": name, "ms": 1e3 * t["run_s"], "compile_s": t["compile_s"]})
+        print(f"{name:45s} {1e3 * t['run_s']:.3f} ms", flush=True)
+    write("cloth_profile", {"scene": "B 32x32 float64", "rows": rows})
+
+
+if __name__ == "__main__":
+    main()
