@@ -6,14 +6,27 @@ dtype of the scene it is given, so both precisions run in one session.  The floa
 """
 
 import os
+import tempfile
 
 os.environ.setdefault("MPLBACKEND", "Agg")
+# One persistent compilation cache for the session, inherited by the subprocesses and
+# notebook kernels the suite starts, so identical programs compile once across processes.
+os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", os.path.join(tempfile.gettempdir(), "jaxsim-test-jax-cache"))
 
 import jax  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
+
+#: Tests that take the longest, started first so the workers finish together.
+SLOW_FIRST = ("test_report.py", "test_notebooks.py", "test_sharding.py", "test_cli.py", "test_cloth_stability.py")
+
+
+def pytest_collection_modifyitems(items):
+    rank = {name: k for k, name in enumerate(SLOW_FIRST)}
+    items.sort(key=lambda it: rank.get(os.path.basename(str(it.fspath)), len(SLOW_FIRST)))
+
 
 #: Tolerances per dtype for quantities of order one.
 TOL = {np.dtype(np.float32): 1e-5, np.dtype(np.float64): 1e-10}

@@ -69,7 +69,7 @@ def _datasets(doc: Doc, dtype, M, n, joints=(6, 10)):
 
 def error_sections(doc: Doc) -> dict:
     quick = doc.quick
-    M, n = (100, 300) if quick else (100, 2000)  # M = 100 also serves the lab's question (one compile)
+    M, n = (100, 100) if quick else (100, 2000)  # M = 100 also serves the lab's question (one compile)
     doc.progress(f"IK 1/4: error against iterations and time (float64, {M} sweeps, {n} random targets per set)")
     d64 = _datasets(doc, np.float64, M, n)
     doc.progress("IK 1/4: float32 traces")
@@ -211,7 +211,7 @@ def lab_question(doc: Doc, info: dict) -> None:
 
 def paper_protocol(doc: Doc) -> None:
     quick = doc.quick
-    n, M = (300, 100) if quick else (2000, 1000)  # quick: the same compiled solve as section 1
+    n, M = (100, 100) if quick else (2000, 1000)  # quick: the same compiled solve as section 1
     tol = 1e-2
     doc.progress(f"IK 3/4: FABRIK paper protocol ({n} targets per case, up to {M} sweeps)")
     chain = _chain(10, np.float64)
