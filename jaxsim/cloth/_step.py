@@ -95,10 +95,10 @@ def incremental_potential(x, theta):
     cloth, x0, v0, h = theta
     y = x0 + h * v0
     g = 0.5 / h**2 * jnp.sum(cloth.mass[:, None] * (x - y) ** 2) + en.energy(cloth, x)
-    if cloth.damped:
-        e0, d0 = en.spring_directions(cloth, x0)
+    damp = _damping_terms(theta)
+    if damp is not None:
         i, j = cloth.springs[:, 0], cloth.springs[:, 1]
-        g = g + jnp.sum(en.damping_element(x[i], x[j], e0, d0, cloth.damping / h))
+        g = g + jnp.sum(en.damping_element(x[i], x[j], *damp))
     return g
 
 
