@@ -12,23 +12,39 @@ def main(argv=None) -> int:
     p = sub.add_parser("demo", help="run the lab's scenes and write animations and a summary")
     p.add_argument("--out", default="jaxsim-demo", help="output folder (default: ./jaxsim-demo)")
     p.add_argument("--fast", action="store_true", help="shorter runs (under a minute)")
+    p.add_argument("--force", action="store_true", help="write into --out even if it holds files demo did not write")
     p = sub.add_parser("report", help="write the error-vs-time and stability report")
     p.add_argument("--out", default="jaxsim-report", help="output folder (default: ./jaxsim-report)")
     p.add_argument("--quick", action="store_true", help="small sizes (under two minutes)")
-    p = sub.add_parser("bench", help="run the benchmark scripts in benchmarks/")
+    p.add_argument("--force", action="store_true", help="write into --out even if it holds files report did not write")
+    p = sub.add_parser("bench", help="run the package's benchmark scripts (source checkout)")
     p.add_argument("names", nargs="*", help="benchmarks to run (default: all)")
     args = parser.parse_args(argv)
-    if args.command == "demo":
-        from ._cli.demo import run
+    from ._cli._out import CLIError
 
-        return run(out=args.out, fast=args.fast)
-    if args.command == "report":
-        from ._cli.report import run
+    try:
+        if args.command == "bench":
+            from ._cli.bench import run
 
-        return run(out=args.out, quick=args.quick)
-    from ._cli.bench import run
+            return run(args.names)
+        from ._cli import _out
+        from ._cli.cache import enable_compilation_cache
 
-    return run(args.names)
+        before = _out.prepare(args.out, args.command, args.force)  # before any work
+        enable_compilation_cache()
+        if args.command == "demo":
+            from ._cli.demo import run
+
+            rc = run(out=args.out, fast=args.fast)
+        else:
+            from ._cli.report import run
+
+            rc = run(out=args.out, quick=args.quick)
+        _out.record(args.out, args.command, before)
+        return rc
+    except CLIError as e:
+        print(f"python -m jaxsim {args.command}: error: {e}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":

@@ -50,6 +50,41 @@ def thin(mask) -> np.ndarray:
             return img
 
 
+def _nearest_start(todo: np.ndarray, deg: np.ndarray, pos: tuple[int, int]) -> tuple[int, int]:
+    """The unvisited pixel nearest to ``pos`` (ties: an end pixel first, then the first in
+    row-major order), found in square windows of doubling radius around ``pos``.
+
+    Its cost grows with the distance searched, not with the image, so tracing an image
+    with many small pieces stays linear in its pixels.
+    """
+    H, W = todo.shape
+    r0, c0 = pos
+
+    def window(r):
+        top, left = max(r0 - r, 0), max(c0 - r, 0)
+        found = np.argwhere(todo[top:r0 + r + 1, left:c0 + r + 1])
+        return found + (top, left)
+
+    r = 1
+    while True:
+        cand = window(r)
+        if len(cand):
+            break
+        if r > max(H, W):
+            raise AssertionError("no unvisited pixel left")  # callers check there is one
+        r *= 2
+    d2 = np.sum((cand - (r0, c0)) ** 2, axis=1)
+    reach = int(np.ceil(np.sqrt(d2.min())))  # every pixel as near lies in this window
+    if reach > r:
+        cand = window(reach)
+        d2 = np.sum((cand - (r0, c0)) ** 2, axis=1)
+    near = cand[d2 == d2.min()]
+    ends = near[deg[near[:, 0], near[:, 1]] == 1]
+    pick = ends if len(ends) else near
+    pick = pick[np.lexsort((pick[:, 1], pick[:, 0]))]
+    return int(pick[0, 0]), int(pick[0, 1])
+
+
 def trace_strokes(skeleton) -> list[np.ndarray]:
     """Order skeleton pixels into strokes drawn with as few pen lifts as the image allows.
 
@@ -58,7 +93,9 @@ def trace_strokes(skeleton) -> list[np.ndarray]:
     path back out of dead ends, so every pixel is visited and consecutive points are at
     most ``sqrt(2)`` pixels apart.  The walk stops at the last new pixel.  Pieces are
     chained greedily: the next stroke starts at the unvisited pixel nearest to where the
-    last one ended, so the only pen jumps are the gaps between pieces.
+    last one ended, so the only pen jumps are the gaps between pieces.  The nearest
+    pixel is searched in growing windows (``_nearest_start``), so the whole trace is
+    linear in the number of pixels for any number of pieces.
 
     Args:
       skeleton: ``(H, W)`` boolean image.
@@ -67,31 +104,30 @@ def trace_strokes(skeleton) -> list[np.ndarray]:
       list of ``(K, 2)`` integer ``(row, col)`` arrays, one per stroke, in drawing order.
     """
     sk = np.asarray(skeleton, bool)
+    H, W = sk.shape
     deg = sum(n.astype(np.int8) for n in _neighbours(sk)) * sk
-    pix = {tuple(p) for p in np.argwhere(sk)}
-    visited: set = set()
+    todo = sk.copy()  # pixels not visited yet
+    remaining = int(sk.sum())
     strokes = []
     pos = None
-    while len(visited) < len(pix):
-        rest = np.array(sorted(pix - visited))
+    order = _NB[0::2] + _NB[1::2]  # 4-neighbours first: fewer diagonal zig-zags
+    while remaining:
         if pos is None:
+            rest = np.argwhere(todo)  # row-major order
             ends = rest[deg[rest[:, 0], rest[:, 1]] == 1]
-            start = tuple((ends if len(ends) else rest)[0])
+            start = tuple(int(v) for v in (ends if len(ends) else rest)[0])
         else:
-            d = np.sum((rest - np.asarray(pos)) ** 2, axis=1)
-            # among the nearest pixels prefer an end pixel, so the stroke does not fork at once
-            near = rest[d == d.min()]
-            e = near[deg[near[:, 0], near[:, 1]] == 1]
-            start = tuple((e if len(e) else near)[0])
+            start = _nearest_start(todo, deg, pos)
         path, stack = [start], [start]
-        visited.add(start)
+        todo[start] = False
+        remaining -= 1
         last_new = 0
         while stack:
             r, c = stack[-1]
             nxt = None
-            for dr, dc in _NB[0::2] + _NB[1::2]:  # 4-neighbours first: fewer diagonal zig-zags
+            for dr, dc in order:
                 q = (r + dr, c + dc)
-                if q in pix and q not in visited:
+                if 0 <= q[0] < H and 0 <= q[1] < W and todo[q]:
                     nxt = q
                     break
             if nxt is None:
@@ -99,7 +135,8 @@ def trace_strokes(skeleton) -> list[np.ndarray]:
                 if stack:
                     path.append(stack[-1])  # retrace
                 continue
-            visited.add(nxt)
+            todo[nxt] = False
+            remaining -= 1
             stack.append(nxt)
             path.append(nxt)
             last_new = len(path)

@@ -19,6 +19,8 @@ import numpy as np
 from jax import lax
 from jax.flatten_util import ravel_pytree
 
+from ._validate import check_int, check_real
+
 
 @dataclasses.dataclass(frozen=True)
 class OptResult:
@@ -40,7 +42,20 @@ class OptResult:
 def adam(loss, params, *, steps: int, lr: float, final_lr: float | None = None, b1: float = 0.9,
          b2: float = 0.999, eps: float = 1e-12) -> OptResult:
     """Minimise ``loss(params)`` with Adam; the learning rate decays geometrically from
-    ``lr`` to ``final_lr`` (default: constant)."""
+    ``lr`` to ``final_lr`` (default: constant).
+
+    Raises:
+      ValueError: ``steps`` not an int ``>= 1``, a non-positive ``lr``, ``final_lr`` or
+        ``eps``, or ``b1``, ``b2`` outside ``[0, 1)``.
+    """
+    steps = check_int("steps", steps, 1)
+    lr = check_real("lr", lr, minimum=0.0, strict=True)
+    if final_lr is not None:
+        final_lr = check_real("final_lr", final_lr, minimum=0.0, strict=True)
+    for name, b in (("b1", b1), ("b2", b2)):
+        if not 0.0 <= check_real(name, b) < 1.0:
+            raise ValueError(f"{name} must lie in [0, 1), got {b!r}")
+    check_real("eps", eps, minimum=0.0, strict=True)
     x0, unravel = ravel_pytree(params)
     decay = 1.0 if final_lr is None else (final_lr / lr) ** (1.0 / steps)
     vg = jax.value_and_grad(lambda x: loss(unravel(x)))
@@ -69,7 +84,13 @@ def levenberg_marquardt(residual, params, *, steps: int = 50, tol: float = 1e-20
 
     A step is kept only if it lowers the cost; ``damping`` is then divided by 3, else
     multiplied by 4.  Stops when the cost is below ``tol``.
+
+    Raises:
+      ValueError: ``steps`` not an int ``>= 0``, ``tol < 0`` or ``damping <= 0``.
     """
+    steps = check_int("steps", steps, 0)
+    tol = check_real("tol", tol, minimum=0.0)
+    damping = check_real("damping", damping, minimum=0.0, strict=True)
     x, unravel = ravel_pytree(params)
     res = lambda x: jnp.ravel(residual(unravel(x)))  # noqa: E731
     m = jax.eval_shape(res, x).shape[0]

@@ -2,6 +2,8 @@ import os
 import subprocess
 import sys
 
+import pytest
+
 
 def test_demo_fast_writes_summary(tmp_path):
     out = tmp_path / "demo"
@@ -22,9 +24,86 @@ def test_demo_fast_writes_summary(tmp_path):
         assert png.format == "PNG" and gif.format == "GIF" and gif.n_frames >= 7, stem
         assert f"{stem}.gif" in text
     assert Image.open(out / "cloth.gif").n_frames == 7  # 61 states, every 10th in --fast
+    # every file the run wrote is listed as its own: a second run may overwrite them
+    from jaxsim._cli import _out
+
+    _out.prepare(str(out), "demo", force=False)
 
 
 def test_help_lists_commands():
     r = subprocess.run([sys.executable, "-m", "jaxsim", "--help"], capture_output=True, text=True, check=True)
     for cmd in ("demo", "report", "bench"):
         assert cmd in r.stdout
+
+
+def jaxsim_cli(*args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "jaxsim", *args], capture_output=True, text=True, timeout=300, cwd=cwd)
+
+
+def test_cli_refuses_to_overwrite_files_it_did_not_write(tmp_path):
+    out = tmp_path / "mine"
+    out.mkdir()
+    (out / "summary.md").write_text("my notes")
+    for cmd in ("demo", "report"):
+        r = jaxsim_cli(cmd, "--fast" if cmd == "demo" else "--quick", "--out", str(out))
+        assert r.returncode == 2 and "did not write" in r.stderr and "--force" in r.stderr
+        assert "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1
+        assert "[demo]" not in r.stdout and "[report]" not in r.stdout  # refused before any work
+    assert (out / "summary.md").read_text() == "my notes"
+
+
+def test_cli_bad_out_is_one_line(tmp_path):
+    f = tmp_path / "afile"
+    f.write_text("x")
+    for out, why in ((f, "is a file"), (f / "sub", "cannot create")):
+        r = jaxsim_cli("demo", "--fast", "--out", str(out))
+        assert r.returncode == 2 and why in r.stderr, r.stderr
+        assert "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1
+
+
+def test_out_manifest_rules(tmp_path):
+    from jaxsim._cli import _out
+
+    out = str(tmp_path / "o")
+    before = _out.prepare(out, "demo", force=False)
+    (tmp_path / "o" / "a.png").write_text("1")
+    _out.record(out, "demo", before)
+    _out.prepare(out, "demo", force=False)  # a re-run may overwrite its own files
+    (tmp_path / "o" / "user.txt").write_text("2")
+    with pytest.raises(_out.CLIError, match="user.txt"):
+        _out.prepare(out, "demo", force=False)
+    with pytest.raises(_out.CLIError, match="a.png"):
+        _out.prepare(out, "report", force=False)  # another command's files are not its own
+    before = _out.prepare(out, "demo", force=True)
+    _out.record(out, "demo", before)
+    with pytest.raises(_out.CLIError, match="user.txt"):  # --force does not adopt the user's file
+        _out.prepare(out, "demo", force=False)
+
+
+def test_bench_runs_only_the_package_benchmarks(tmp_path):
+    fake = tmp_path / "benchmarks"
+    fake.mkdir()
+    marker = tmp_path / "ran"
+    (fake / "_common.py").write_text("")
+    (fake / "evil.py").write_text(f"open({str(marker)!r}, 'w').write('x')\n")
+    r = jaxsim_cli("bench", "evil", cwd=str(tmp_path))
+    assert r.returncode == 2 and "unknown benchmark" in r.stderr and not marker.exists()
+    from jaxsim._cli.bench import bench_dir
+
+    import jaxsim
+
+    assert bench_dir() == os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(jaxsim.__file__))), "benchmarks")
+
+
+def test_cli_enables_the_compilation_cache(tmp_path, monkeypatch):
+    import jax
+
+    from jaxsim._cli.cache import enable_compilation_cache
+
+    monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR", str(tmp_path / "cache"))
+    old = jax.config.jax_compilation_cache_dir
+    try:
+        assert enable_compilation_cache() == str(tmp_path / "cache")
+        assert jax.config.jax_compilation_cache_dir == str(tmp_path / "cache")
+    finally:
+        jax.config.update("jax_compilation_cache_dir", old)

@@ -1,4 +1,9 @@
-"""``python -m jaxsim bench``: run the scripts in ``benchmarks/`` (from a source checkout)."""
+"""``python -m jaxsim bench``: run the package's own benchmark scripts.
+
+They live in ``benchmarks/`` beside the ``jaxsim`` package of a source checkout (an
+editable install), never in the current directory: a folder of the same name elsewhere
+is not run.
+"""
 
 from __future__ import annotations
 
@@ -6,26 +11,31 @@ import os
 import subprocess
 import sys
 
+from ._out import CLIError
 
-def _bench_dir() -> str | None:
-    here = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-    for d in (os.path.join(os.getcwd(), "benchmarks"), os.path.join(here, "benchmarks")):
-        if os.path.isdir(d):
-            return d
-    return None
+#: A file that marks the folder as jaxsim's own benchmarks.
+_MARKER = "_common.py"
+
+
+def bench_dir() -> str | None:
+    """``benchmarks/`` next to the installed ``jaxsim`` package, if it is jaxsim's."""
+    import jaxsim
+
+    top = os.path.dirname(os.path.dirname(os.path.abspath(jaxsim.__file__)))
+    d = os.path.join(top, "benchmarks")
+    return d if os.path.isfile(os.path.join(d, _MARKER)) else None
 
 
 def run(names: list[str]) -> int:
-    d = _bench_dir()
+    d = bench_dir()
     if d is None:
-        print("benchmarks/ not found: run from a source checkout of jaxsim", file=sys.stderr)
-        return 2
+        raise CLIError("the benchmark scripts are not installed: they ship with the source checkout; "
+                       "install it with `pip install -e .` and run from there")
     scripts = sorted(f[:-3] for f in os.listdir(d) if f.endswith(".py") and not f.startswith("_"))
     chosen = names or scripts
     unknown = [n for n in chosen if n not in scripts]
     if unknown:
-        print(f"unknown benchmark(s) {unknown}; available: {scripts}", file=sys.stderr)
-        return 2
+        raise CLIError(f"unknown benchmark(s) {unknown}; available: {scripts}")
     rc = 0
     for name in chosen:
         print(f"[bench] {name}", flush=True)

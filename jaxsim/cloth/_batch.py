@@ -9,8 +9,12 @@ from collections.abc import Sequence
 import jax
 import jax.numpy as jnp
 
+import numpy as np
+
 from .. import _sharding
-from ._integrators import ImplicitEuler
+from .._dataclass import is_concrete
+from .._validate import check_bool, check_finite, check_int, check_positive, check_real
+from ._integrators import ExplicitEuler, ImplicitEuler
 from ._scene import Cloth, State
 from ._step import _rollout, check_inputs
 
@@ -53,6 +57,30 @@ def _batched(scenes, state, dt, n_steps, integrator, checkpoint, state_batched):
     return jax.vmap(lambda c, s: run(c, s), in_axes=(0, 0 if state_batched else None))(scenes, state)
 
 
+def check_batched(scenes: Cloth) -> None:
+    """The ``Cloth`` checks on a batched scene from :func:`stack_scenes` (concrete leaves)."""
+    if scenes.rest.ndim != 3:
+        raise ValueError("batch_rollout needs a batched Cloth (leaves with a leading scene axis); use stack_scenes")
+    leaves = [getattr(scenes, f) for f in _LEAVES]
+    if not is_concrete(*leaves):
+        return
+    B, N, _ = scenes.rest.shape
+    S = scenes.springs.shape[1]
+    shapes = {"rest": (B, N, 3), "springs": (B, S, 2), "rest_length": (B, S), "stiffness": (B, S), "mass": (B, N),
+              "pinned": (B, N), "gravity": (B, 3), "damping": (B,)}
+    for f, shape in shapes.items():
+        a = np.asarray(getattr(scenes, f))
+        if a.shape != shape:
+            raise ValueError(f"batched scene field {f} must have shape {shape}, got {a.shape}")
+        if f not in ("springs", "pinned"):
+            check_finite(f"batched scene {f}", a)
+    for f, strict in (("rest_length", True), ("mass", True), ("stiffness", False), ("damping", False)):
+        check_positive(f"batched scene {f}", np.asarray(getattr(scenes, f)), strict=strict)
+    springs = np.asarray(scenes.springs)
+    if springs.size and (springs.min() < 0 or springs.max() >= N):
+        raise ValueError(f"batched scene spring ids must lie in [0, {N}), got range [{springs.min()}, {springs.max()}]")
+
+
 def batch_rollout(scenes, state: State, dt, n_steps: int, integrator=ImplicitEuler(), *,
                   sharded: bool | None = None, checkpoint: bool = False):
     """``rollout`` for ``B`` parameter sets at once.
@@ -68,18 +96,30 @@ def batch_rollout(scenes, state: State, dt, n_steps: int, integrator=ImplicitEul
     Returns:
       ``(states, infos)`` with leading ``(B, n_steps)`` axes.
     """
+    if not isinstance(state, State):
+        raise TypeError(f"state must be a jaxsim.cloth.State, got {type(state).__name__}")
+    if not isinstance(integrator, (ExplicitEuler, ImplicitEuler)):
+        raise TypeError(f"integrator must be ExplicitEuler or ImplicitEuler, got {type(integrator).__name__}")
     if not isinstance(scenes, Cloth):
+        scenes = list(scenes)
         for s in scenes:
-            check_inputs(s, state if state.x.ndim == 2 else State(state.x[0], state.v[0]), dt, integrator)
+            check_inputs(s, state if np.ndim(state.x) == 2 else State(state.x[0], state.v[0]), dt, integrator)
         scenes = stack_scenes(scenes)
-    if scenes.rest.ndim != 3:
-        raise ValueError("batch_rollout needs a batched Cloth (leaves with a leading scene axis); use stack_scenes")
-    B = scenes.rest.shape[0]
-    state_batched = state.x.ndim == 3
-    if state_batched and state.x.shape[0] != B:
-        raise ValueError(f"state has {state.x.shape[0]} entries for {B} scenes")
-    if not (isinstance(n_steps, int) and n_steps >= 1):
-        raise ValueError(f"n_steps must be an int >= 1, got {n_steps!r}")
+    check_batched(scenes)
+    B, N = scenes.rest.shape[0], scenes.rest.shape[1]
+    state_batched = np.ndim(state.x) == 3
+    want = (B, N, 3) if state_batched else (N, 3)
+    for name, a in (("state.x", state.x), ("state.v", state.v)):
+        if tuple(np.shape(a)) != want:
+            raise ValueError(f"{name} must have shape {want} (or ({N}, 3) for all scenes) for {B} scenes of {N} "
+                             f"particles, got {tuple(np.shape(a))}")
+        if is_concrete(a):
+            check_finite(name, a)
+    state = State(jnp.asarray(state.x, scenes.dtype), jnp.asarray(state.v, scenes.dtype))
+    if is_concrete(dt):
+        check_real("dt", dt, minimum=0.0, strict=True)
+    n_steps = check_int("n_steps", n_steps, 1)
+    checkpoint = check_bool("checkpoint", checkpoint)
     mesh = _sharding.batch_mesh(sharded, B)
     pad = 0
     if mesh is not None:

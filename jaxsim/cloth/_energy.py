@@ -32,9 +32,51 @@ def _length(v):
     return jnp.where(ok, jnp.sqrt(jnp.where(ok, s, 1.0)), 0.0)
 
 
+def spring_potential(stretch, k):
+    """The spring law, ``psi(s) = k/2 s^2`` (J) of a spring stretched by ``s = l - L`` (m).
+
+    Every spring energy in the package (the scene's ``energy``, the implicit step's
+    incremental potential, the Hessian blocks) is this one function.
+    """
+    return 0.5 * k * stretch * stretch
+
+
 def spring_element(xi, xj, L, k):
     """Potential of one spring: ``k/2 (|x_j - x_i| - L)^2`` (J)."""
-    return 0.5 * k * (_length(xj - xi) - L) ** 2
+    return spring_potential(_length(xj - xi) - L, k)
+
+
+def stretch_increment(d0, l0, dd):
+    """``|d0 + dd| - |d0|`` without cancellation, for small ``dd`` (m).
+
+    Written as ``(2 d0.dd + dd.dd) / (|d0 + dd| + |d0|)``, so its relative precision is
+    that of ``dd`` and not that of ``|d0|``: the implicit step's unknown is the
+    displacement, and float32 can then resolve motions far below ``eps * |x|``.
+
+    Args:
+      d0: ``(..., 3)`` spring vectors at the start of the step.
+      l0: ``(...)`` their lengths ``|d0|``.
+      dd: ``(..., 3)`` change of the spring vectors.
+    """
+    l = _length(d0 + dd)
+    den = l + l0
+    ok = den > tiny(den.dtype)
+    num = jnp.sum((2.0 * d0 + dd) * dd, axis=-1)
+    return jnp.where(ok, num / jnp.where(ok, den, 1.0), l - l0)
+
+
+def step_element(dd, d0, l0, s0, k, e0=None, d_over_h=None):
+    """Potential of one spring in the implicit step, as a function of ``dd = du_j - du_i``.
+
+    ``psi(s0 + (|d0 + dd| - l0))`` plus, when ``e0`` is given, the frozen-direction
+    damping potential ``d/(2h) (e0 . dd)^2`` (module doc).  ``s0 = l0 - L`` is the
+    stretch at the start of the step.
+    """
+    v = spring_potential(s0 + stretch_increment(d0, l0, dd), k)
+    if e0 is not None:
+        s = jnp.sum(e0 * dd, axis=-1)
+        v = v + 0.5 * d_over_h * s * s
+    return v
 
 
 def damping_element(xi, xj, e0, d01_0, d_over_h):
@@ -80,15 +122,43 @@ def spring_directions(cloth: Cloth, x):
     return jnp.where(n > 0, d / jnp.where(n > 0, n, 1.0), 0.0), d
 
 
-def element_blocks(cloth: Cloth, x, damping_terms=None, *, project_psd: bool):
-    """Per-spring 3x3 blocks ``A_s`` of the potential's Hessian, by ``jax.hessian``.
+def blocks_from_elements(d0, l0, s0, k, dd, e0=None, d_over_h=None, *, project_psd: bool):
+    """Per-spring 3x3 blocks ``A_s`` by ``jax.hessian`` of :func:`step_element` at ``dd``.
 
     Each element potential depends on ``x_j - x_i`` only, so its 6x6 Hessian is
-    ``[[A, -A], [-A, A]]``; ``A`` is taken from ``jax.hessian`` of the element and,
-    with ``project_psd``, made positive semidefinite.  For a spring,
-    ``A = k e e^T + k (1 - L/l)(I - e e^T)``: the perpendicular eigenvalue
-    ``k (1 - L/l)`` is negative for a compressed spring and is clamped at 0, which is
-    the exact PSD projection of the block (and of the 6x6 element Hessian).
+    ``[[A, -A], [-A, A]]``.  For a spring ``A = k e e^T + k (1 - L/l)(I - e e^T)``; with
+    ``project_psd`` the perpendicular eigenvalue ``k (1 - L/l)``, negative for a
+    compressed spring, is clamped at 0, which is the exact PSD projection of the block
+    (and of the 6x6 element Hessian).
+
+    Args:
+      d0, l0, s0, k: ``(S, 3)``, ``(S,)``, ``(S,)``, ``(S,)`` as for :func:`step_element`.
+      dd: ``(S, 3)`` where to evaluate.
+      e0, d_over_h: ``(S, 3)`` and ``()`` damping terms, or ``None``.
+
+    Returns:
+      ``(S, 3, 3)`` blocks.
+    """
+    hess = jax.hessian(step_element)
+    if e0 is None:
+        A = jax.vmap(hess)(dd, d0, l0, s0, k)
+    else:
+        A = jax.vmap(hess, in_axes=(0, 0, 0, 0, 0, 0, None))(dd, d0, l0, s0, k, e0, d_over_h)
+    if project_psd:
+        d = d0 + dd
+        n = _length(d)[:, None]
+        e = jnp.where(n > 0, d / jnp.where(n > 0, n, 1.0), 0.0)
+        eAe = jnp.einsum("si,sij,sj->s", e, A, e)
+        lam_perp = 0.5 * (jnp.trace(A, axis1=1, axis2=2) - eAe)
+        P = jnp.eye(3, dtype=A.dtype) - e[:, :, None] * e[:, None, :]
+        A = A + jnp.maximum(-lam_perp, 0.0)[:, None, None] * P
+    return A
+
+
+def element_blocks(cloth: Cloth, x, damping_terms=None, *, project_psd: bool):
+    """Per-spring 3x3 blocks ``A_s`` of the potential's Hessian at positions ``x (N, 3)``.
+
+    See :func:`blocks_from_elements`.
 
     Args:
       damping_terms: ``(e0 (S,3), d01_0 (S,3), d/h)`` to add the implicit damping blocks.
@@ -96,29 +166,11 @@ def element_blocks(cloth: Cloth, x, damping_terms=None, *, project_psd: bool):
     Returns:
       ``(S, 3, 3)`` blocks.
     """
-    i, j = cloth.springs[:, 0], cloth.springs[:, 1]
-
-    def elem(xi, xj, L, k, *extra):
-        def phi(dx):
-            v = spring_element(xi, xj + dx, L, k)
-            if extra:
-                v = v + damping_element(xi, xj + dx, *extra)
-            return v
-
-        return jax.hessian(phi)(jnp.zeros_like(xi))
-
-    if damping_terms is None:
-        A = jax.vmap(elem)(x[i], x[j], cloth.rest_length, cloth.stiffness)
-    else:
-        e0, d0, doh = damping_terms
-        A = jax.vmap(elem, in_axes=(0, 0, 0, 0, 0, 0, None))(x[i], x[j], cloth.rest_length, cloth.stiffness, e0, d0, doh)
-    if project_psd:
-        e, _ = spring_directions(cloth, x)
-        eAe = jnp.einsum("si,sij,sj->s", e, A, e)
-        lam_perp = 0.5 * (jnp.trace(A, axis1=1, axis2=2) - eAe)
-        P = jnp.eye(3, dtype=A.dtype) - e[:, :, None] * e[:, None, :]
-        A = A + jnp.maximum(-lam_perp, 0.0)[:, None, None] * P
-    return A
+    _, d = spring_directions(cloth, x)
+    l = _length(d)
+    e0, doh = (None, None) if damping_terms is None else (damping_terms[0], damping_terms[2])
+    return blocks_from_elements(d, l, l - cloth.rest_length, cloth.stiffness, jnp.zeros_like(d), e0, doh,
+                                project_psd=project_psd)
 
 
 def assemble(cloth: Cloth, blocks):

@@ -9,8 +9,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._dataclass import is_concrete, pytree_dataclass, static_field
-from .._dtype import as_float, default_float
-from .._validate import check_finite, check_positive, check_shape
+from .._dtype import as_float, check_array_dtype, check_float_dtype, default_float
+from .._validate import check_finite, check_int, check_positive, check_real, check_shape
 
 
 @pytree_dataclass
@@ -55,7 +55,10 @@ class Cloth:
                   self.gravity, self.damping)
         if not is_concrete(*leaves):
             return
+        if np.ndim(self.rest) == 3 and self.incidence is not None:
+            return  # a batch from stack_scenes, rebuilt by a pytree map (checked by batch_rollout)
         rest = check_shape("rest positions", self.rest, (None, 3))
+        check_array_dtype("Cloth", rest.dtype)
         N = rest.shape[0]
         if N < 1:
             raise ValueError("a Cloth needs at least one particle")
@@ -163,8 +166,12 @@ def spring_sum(cloth: Cloth, f, signed: bool = True):
 
 
 def pin_mask(n_particles: int, ids) -> np.ndarray:
-    """Bool mask ``(N,)`` from pin ids, with range checks."""
-    ids = np.asarray(ids, dtype=np.int64).reshape(-1)
+    """Bool mask ``(N,)`` from pin ids, with type and range checks."""
+    raw = np.asarray(ids)
+    if raw.size and (raw.dtype == np.bool_ or not np.issubdtype(raw.dtype, np.integer)):
+        raise ValueError(f"pin ids must be integers (particle indices), got {ids!r}; "
+                         "for a boolean mask build the Cloth with pinned=")
+    ids = raw.astype(np.int64).reshape(-1)
     if ids.size and (ids.min() < 0 or ids.max() >= n_particles):
         raise ValueError(f"pin ids must lie in [0, {n_particles}), got {ids.tolist()}")
     mask = np.zeros(n_particles, bool)
@@ -209,16 +216,18 @@ def grid(n: int, spacing: float = 0.2, *, origin=(0.0, 1.5, -1.0), mass: float =
       pins: pinned particle ids; default the two corners of the first row, ``0`` and ``n``.
       dtype: float dtype (default float32, float64 under ``jax_enable_x64``).
     """
-    if not (isinstance(n, (int, np.integer)) and n >= 1):
-        raise ValueError(f"grid needs n >= 1 cells per side, got {n!r}")
-    if not spacing > 0:
-        raise ValueError(f"spacing must be > 0, got {spacing!r}")
+    n = check_int("grid n (cells per side)", n, 1)
+    spacing = check_real("spacing", spacing, minimum=0.0, strict=True)
+    for name, val in (("mass", mass), ("stiffness", stiffness), ("damping", damping), ("gravity", gravity)):
+        check_real(name, val)
+    if np.ndim(origin) != 1 or np.shape(origin) != (3,):
+        raise ValueError(f"origin must be 3 numbers, got {origin!r}")
     m = n + 1
     ii, jj = np.meshgrid(np.arange(m), np.arange(m), indexing="ij")
     rest = np.stack([spacing * ii, np.zeros_like(ii, float), spacing * jj], -1).reshape(-1, 3) + np.asarray(origin)
     springs, _ = grid_springs(n)
     L = np.linalg.norm(rest[springs[:, 1]] - rest[springs[:, 0]], axis=-1)
-    dtype = default_float() if dtype is None else dtype
+    dtype = default_float() if dtype is None else check_float_dtype("grid", dtype)
     pins = [0, n] if pins is None else pins
     return Cloth(
         rest=np.asarray(rest, dtype), springs=springs, rest_length=np.asarray(L, dtype),

@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._dataclass import is_concrete, pytree_dataclass
-from .._dtype import as_float
+from .._dtype import as_float, check_array_dtype, tiny
 from .._validate import check_finite
 
 
@@ -21,7 +21,9 @@ class Chain:
         parent's frame (the lab's ``LocalOffset``), in scene units (metres in the lab).
 
     Raises:
-      ValueError: on a wrong shape, ``J < 2``, non-finite values or a zero-length bone.
+      ValueError: on a wrong shape, ``J < 2``, non-finite values, a zero-length bone, a
+        half-precision dtype, or a chain too large for its dtype (squared distances
+        across it must not overflow: about 4e18 scene units in float32).
     """
 
     offsets: jax.Array
@@ -34,12 +36,21 @@ class Chain:
             raise ValueError(f"Chain offsets must have shape (J, 3), got {a.shape}")
         if a.shape[0] < 2:
             raise ValueError(f"a Chain needs at least 2 joints (one bone), got J={a.shape[0]}")
+        check_array_dtype("Chain", a.dtype)
         check_finite("Chain offsets", a)
+        offsets = as_float(self.offsets)
+        dtype = offsets.dtype
         lengths = np.linalg.norm(a[1:].astype(np.float64), axis=-1)
-        if np.any(lengths <= 0):
-            bad = np.flatnonzero(lengths <= 0) + 1
-            raise ValueError(f"Chain has zero-length bones at joint(s) {bad.tolist()}")
-        object.__setattr__(self, "offsets", as_float(self.offsets))
+        if np.any(lengths <= tiny(dtype)):
+            bad = np.flatnonzero(lengths <= tiny(dtype)) + 1
+            raise ValueError(f"Chain has zero-length bones (shorter than {tiny(dtype):.1e} in {dtype}) at joint(s) "
+                             f"{bad.tolist()}")
+        span = float(np.abs(a[0].astype(np.float64)).max() + lengths.sum())
+        limit = float(np.sqrt(np.finfo(dtype).max)) / 8
+        if span >= limit:
+            raise ValueError(f"Chain spans {span:.3g} scene units, too large for {dtype} (squared distances overflow "
+                             f"beyond {limit:.2g}); use float64 or smaller units")
+        object.__setattr__(self, "offsets", offsets)
 
     @property
     def num_joints(self) -> int:
@@ -94,5 +105,12 @@ def straight_chain(lengths, root=(0.0, 0.0, 0.0), direction=(0.0, 0.0, 1.0)) -> 
     """A chain whose bones of the given ``lengths`` all point along ``direction`` at rest."""
     lengths = np.asarray(lengths, dtype=np.float64)
     d = np.asarray(direction, dtype=np.float64)
-    d = d / np.linalg.norm(d)
+    if d.shape != (3,):
+        raise ValueError(f"direction must be a 3-vector, got shape {d.shape}")
+    n = np.linalg.norm(d)
+    if not (np.isfinite(n) and n > 0):
+        raise ValueError(f"direction must be a finite non-zero vector, got {direction!r}")
+    if lengths.ndim != 1:
+        raise ValueError(f"lengths must be a 1D sequence of bone lengths, got shape {lengths.shape}")
+    d = d / n
     return Chain(np.concatenate([np.asarray(root, np.float64)[None], lengths[:, None] * d[None]]))

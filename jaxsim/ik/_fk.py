@@ -54,8 +54,10 @@ def fk(chain: Chain, rotations: jax.Array | None = None, *, unroll: bool | None 
 
     Args:
       chain: the chain, with ``offsets (J, 3)``.
-      rotations: ``(..., J, 4)`` local unit quaternions (w, x, y, z); ``None`` is the rest
-        pose.  Any leading batch shape is allowed.
+      rotations: ``(..., J, 4)`` local rotations as quaternions (w, x, y, z); ``None`` is
+        the rest pose.  Any leading batch shape is allowed.  They are normalised first
+        (``q / |q|``, and a zero quaternion is the identity), so bone lengths are kept
+        whatever the scale of ``q``.
       unroll: unroll the joint loop (default: ``J <= 16`` and a batch of >= 256).
 
     Returns:
@@ -67,6 +69,7 @@ def fk(chain: Chain, rotations: jax.Array | None = None, *, unroll: bool | None 
     J = chain.num_joints
     if rotations.shape[-2:] != (J, 4):
         raise ValueError(f"rotations must have shape (..., {J}, 4), got {rotations.shape}")
+    rotations = _quat.unit_quaternions(rotations)
     unroll = _joints.unrolled(J, unroll, int(np.prod(rotations.shape[:-2])))
     local = _joints.split(jnp.moveaxis(rotations, (-2, -1), (0, 1)), unroll)
     P, G = fk_joints(chain.offsets, local, rotations.shape[:-2], unroll=unroll)

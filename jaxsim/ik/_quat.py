@@ -112,6 +112,22 @@ def renormalize(q):
     return scale(inv, q)
 
 
+def unit_quaternions(q):
+    """``q / |q|`` over the last axis of a ``(..., 4)`` array; a zero quaternion becomes the
+    identity ``(1, 0, 0, 0)``.
+
+    Scaled by the largest component first, so neither huge nor tiny quaternions over- or
+    underflow; NaN-free in value and gradient at zero (double ``where``).
+    """
+    q = jnp.asarray(q)
+    big = jnp.max(jnp.abs(q), axis=-1, keepdims=True)
+    ok = big > 0
+    qs = q / jnp.where(ok, big, 1.0)
+    n = jnp.sqrt(jnp.where(ok, jnp.sum(qs * qs, axis=-1, keepdims=True), 1.0))
+    ident = jnp.zeros_like(q).at[..., 0].set(1.0)
+    return jnp.where(ok, qs / jnp.where(ok, n, 1.0), ident)
+
+
 def perpendicular(a):
     """A unit vector perpendicular to ``a`` (any unit vector if ``a`` is zero)."""
     ax, ay, az = (jnp.abs(x) for x in a)

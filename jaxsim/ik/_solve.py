@@ -19,7 +19,7 @@ from jax import lax
 
 from .. import _sharding
 from .._dataclass import is_concrete
-from .._validate import check_finite
+from .._validate import check_bool, check_finite, check_int, check_tol
 from . import _joints, _quat
 from ._ccd import ccd_sweep
 from ._chain import Chain
@@ -177,15 +177,19 @@ def check_settings(chain, solver, max_iters, tol):
         raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
     if not isinstance(chain, Chain):
         raise TypeError(f"chain must be a jaxsim.ik.Chain, got {type(chain).__name__}")
-    if not (isinstance(max_iters, (int, np.integer)) and max_iters >= 1):
-        raise ValueError(f"max_iters must be an int >= 1, got {max_iters!r}")
-    if is_concrete(tol) and not (np.ndim(tol) == 0 and float(tol) >= 0 and np.isfinite(tol)):
-        raise ValueError(f"tol must be a finite scalar >= 0, got {tol!r}")
+    check_int("max_iters", max_iters, 1)
+    check_tol("tol", tol)
 
 
 def _solve(kind, chain, target, rotations, *, max_iters, tol, trace, unroll, early_exit=False, implicit_diff=False,
            sharded=False):
     check_settings(chain, kind, max_iters, tol)
+    for name, flag in (("trace", trace), ("early_exit", early_exit), ("implicit_diff", implicit_diff)):
+        check_bool(name, flag)
+    if unroll is not None:
+        check_bool("unroll", unroll)
+    if sharded is not None:
+        check_bool("sharded", sharded)
     dtype = chain.offsets.dtype
     target = target_in = jnp.asarray(target, dtype)
     rotations = chain.rest_rotations() if rotations is None else jnp.asarray(rotations, dtype)

@@ -10,12 +10,12 @@ import numpy as np
 from jax import lax
 
 from .._dataclass import is_concrete
-from .._validate import check_finite
+from .._validate import check_finite, check_real
 from . import _joints, _quat
 from ._chain import Chain
 from ._fk import fk_joints
 from ._result import IKResult
-from ._solve import _run, check_settings
+from ._solve import _check_target_and_rotations, _run, check_settings
 
 
 def rotation_change(a, b):
@@ -42,6 +42,8 @@ def jitter(rotations, start=None):
       ``(T,)`` radians; ``jitter[t] = max_j angle(L_{t-1,j}^{-1} L_{t,j})``.
     """
     rotations = jnp.asarray(rotations)
+    if rotations.ndim != 3 or rotations.shape[-1] != 4:
+        raise ValueError(f"jitter needs rotations of shape (T, J, 4), one pose per frame, got {rotations.shape}")
     prev0 = rotations[:1] if start is None else jnp.asarray(start, rotations.dtype)[None]
     prev = jnp.concatenate([prev0, rotations[:-1]], axis=0)
     return jnp.max(rotation_change(prev, rotations), axis=-1)
@@ -51,7 +53,12 @@ def jitter(rotations, start=None):
 def _track(offsets, targets, local0, tol, max_step, *, kind, max_iters, unroll, clamp):
     J = local0.shape[0]
 
-    def frame(local_prev, target):
+    def pose(local):
+        P, _ = fk_joints(offsets, _joints.split(local, unroll), (), unroll=unroll)
+        return _joints.stack(P)
+
+    def frame(prev, target):
+        local_prev, P_prev = prev
         local, P, err, iters, conv, reachable, errs = _run(
             offsets, target, local_prev, tol, kind=kind, max_iters=max_iters, unroll=unroll, trace=True
         )
@@ -59,13 +66,19 @@ def _track(offsets, targets, local0, tol, max_step, *, kind, max_iters, unroll, 
             a, b = _quat.unstack(local_prev, axis=1), _quat.unstack(local, axis=1)  # tuples of (J,)
             delta = _quat.clamp_angle(_quat.mul(_quat.conj(a), b), max_step)
             local = _quat.stack(_quat.renormalize(_quat.mul(a, delta)), axis=1)
-            P, _ = fk_joints(offsets, _joints.split(local, unroll), (), unroll=unroll)
-            P = _joints.stack(P)
+            P = pose(local)
             err = _quat.safe_norm(_quat.sub(_quat.unstack(P[J - 1]), _quat.unstack(target)))
             conv = err <= tol
-        return local, (local, P, err, iters, conv, reachable, errs)
+        # a non-finite target (only possible under jit) must not poison later frames:
+        # keep the last good pose and flag the frame (error inf, not converged)
+        good = jnp.all(jnp.isfinite(target)) & jnp.all(jnp.isfinite(local)) & jnp.all(jnp.isfinite(P))
+        local, P = jnp.where(good, local, local_prev), jnp.where(good, P, P_prev)
+        inf = jnp.array(jnp.inf, err.dtype)
+        out = (local, P, jnp.where(good, err, inf), jnp.where(good, iters, 0), conv & good, reachable & good,
+               jnp.where(good, errs, inf))
+        return (local, P), out
 
-    _, out = lax.scan(frame, local0, targets)
+    _, out = lax.scan(frame, (local0, pose(local0)), targets)
     return out
 
 
@@ -89,6 +102,9 @@ def track(chain: Chain, targets, *, solver: str = "fabrik", rotations=None, max_
 
     Returns:
       ``IKResult`` whose fields have a leading ``T`` axis; ``trace`` is ``(T, max_iters)``.
+      Under ``jit`` a non-finite target cannot raise: that frame keeps the previous
+      pose and reports ``error = inf``, ``iterations = 0``, ``converged = False``, and
+      later frames go on from the last good pose.
     """
     check_settings(chain, solver, max_iters, tol)
     dtype = chain.offsets.dtype
@@ -101,8 +117,9 @@ def track(chain: Chain, targets, *, solver: str = "fabrik", rotations=None, max_
     rotations = chain.rest_rotations() if rotations is None else jnp.asarray(rotations, dtype)
     if rotations.shape != (J, 4):
         raise ValueError(f"rotations must have shape ({J}, 4), got {rotations.shape}")
-    if max_step_angle is not None and is_concrete(max_step_angle) and not float(max_step_angle) > 0:
-        raise ValueError(f"max_step_angle must be > 0 radians, got {max_step_angle!r}")
+    _check_target_and_rotations(chain, targets, rotations)
+    if max_step_angle is not None and is_concrete(max_step_angle):
+        check_real("max_step_angle", max_step_angle, minimum=0.0, strict=True)
     local, P, err, iters, conv, reachable, errs = _track(
         chain.offsets,
         targets,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._common import new_figure
+from ._common import check_fps, check_frames, new_figure
 
 
 def _segments(springs, x):
@@ -38,6 +38,8 @@ def plot_cloth(cloth, x, ax=None, title: str = ""):
     from mpl_toolkits.mplot3d.art3d import Line3DCollection
 
     x = np.asarray(x, np.float64)
+    if x.shape != (cloth.num_particles, 3):
+        raise ValueError(f"x must have shape ({cloth.num_particles}, 3), got {x.shape}")
     if ax is None:
         fig, ax = new_figure(4.5, 4.5, projection="3d")
     _setup(ax, cloth, x)
@@ -55,7 +57,8 @@ def animate_cloth(cloth, xs, path: str, fps: int = 30, stride: int = 1, title: s
     from matplotlib.animation import PillowWriter
     from mpl_toolkits.mplot3d.art3d import Line3DCollection
 
-    xs = np.asarray(xs, np.float64)
+    fps = check_fps(fps)
+    xs = check_frames("xs", xs, (cloth.num_particles, 3))
     fig, ax = new_figure(4, 4, dpi=dpi, projection="3d")
     _setup(ax, cloth, xs)
     springs = _structural(cloth)

@@ -16,9 +16,40 @@ def new_figure(width: float = 5.0, height: float = 4.0, dpi: int = 80, projectio
 
 
 def save(fig, path: str, dpi: int | None = None) -> str:
-    """Write ``fig`` to ``path`` (format from the suffix) and return the path."""
+    """Write ``fig`` to ``path`` and return the path of the file written.
+
+    The format comes from the suffix; a path without one gets matplotlib's default
+    format (``.png``) appended, and the returned path says so.
+    """
+    import os
+
+    import matplotlib
+
+    path = os.fspath(path)
+    if not os.path.splitext(path)[1]:
+        path = f"{path}.{matplotlib.rcParams['savefig.format']}"
     fig.savefig(path, dpi=dpi)
     return path
+
+
+def check_fps(fps) -> float:
+    """Frames per second of a GIF: a finite number > 0."""
+    from .._validate import check_real
+
+    return check_real("fps", fps, minimum=0.0, strict=True)
+
+
+def check_frames(name: str, a, shape_tail: tuple, *, frames: int | None = None) -> np.ndarray:
+    """``a`` as a float array of shape ``(T, *shape_tail)`` with ``T >= 1`` (and ``T == frames``)."""
+    a = np.asarray(a, np.float64)
+    if a.ndim != 1 + len(shape_tail) or any(s is not None and s != d for s, d in zip(shape_tail, a.shape[1:])):
+        want = "(T, " + ", ".join("*" if s is None else str(s) for s in shape_tail) + ")"
+        raise ValueError(f"{name} must have shape {want}, got {a.shape}")
+    if a.shape[0] == 0:
+        raise ValueError(f"{name} has no frames")
+    if frames is not None and a.shape[0] != frames:
+        raise ValueError(f"{name} has {a.shape[0]} frames but the result has {frames}")
+    return a
 
 
 def render_text(text: str, px: int = 64, weight: str = "bold") -> np.ndarray:

@@ -6,12 +6,18 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._common import new_figure
+from ._common import check_fps, check_frames, new_figure
 
 _AXES = {"xy": (0, 1), "xz": (0, 2), "zy": (2, 1)}
 
 
+def _check_plane(plane):
+    if plane not in _AXES:
+        raise ValueError(f"plane must be one of {sorted(_AXES)}, got {plane!r}")
+
+
 def _proj(a, plane):
+    _check_plane(plane)
     i, j = _AXES[plane]
     a = np.asarray(a, np.float64)
     return a[..., i], a[..., j]
@@ -70,8 +76,10 @@ def plot_tracking(result, targets, plane: str = "xz", title: str = ""):
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    P = np.asarray(result.positions)
+    _check_plane(plane)
+    P = check_frames("result.positions", result.positions, (None, 3))
     err = np.asarray(result.error)
+    targets = check_frames("targets", targets, (3,), frames=len(P))
     fig = Figure(figsize=(5, 6.5), dpi=80)
     FigureCanvasAgg(fig)
     ax, ax2 = fig.subplots(2, 1, gridspec_kw={"height_ratios": [3, 1]})
@@ -106,8 +114,10 @@ def animate_tracking(result, targets, path: str, plane: str = "xz", fps: int = 3
     """
     from matplotlib.animation import PillowWriter
 
-    P = np.asarray(result.positions)
-    targets = np.asarray(targets)
+    _check_plane(plane)
+    fps = check_fps(fps)
+    P = check_frames("result.positions", result.positions, (None, 3))
+    targets = check_frames("targets", targets, (3,), frames=len(P))
     fig, ax = new_figure(4, 4, dpi=dpi)
     _frame_axes(ax, targets, P, plane, title)
     tu, tv = _proj(targets, plane)

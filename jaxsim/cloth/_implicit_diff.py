@@ -1,0 +1,62 @@
+"""The derivative of an implicit step by the implicit function theorem at its solution.
+
+Nothing is differentiated through the Newton, line-search or CG loops: the converged
+displacement ``u*`` solves ``F(u*, p) = 0`` and ``du*/dp = -J^{-1} dF/dp`` with one
+linear solve with the exact Hessian.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+from jax import lax
+
+from . import _problem as pr
+from ._linsolve import pcg
+from ._newton import block_jacobi
+
+
+def stationarity(u, p: pr.StepProblem):
+    """Root function in the free unknowns ``u (N, 3)`` (pinned entries 0).
+
+    ``F(u) = P grad g(P u) + (1 - P) u``: its Jacobian ``P H P + (1 - P)`` is symmetric.
+    """
+    free = p.free > 0
+    return jnp.where(free, jax.grad(pr.incremental_potential)(jnp.where(free, u, 0.0), p), u)
+
+
+@functools.partial(jax.custom_jvp, nondiff_argnums=(0,))
+def solution(integ, u_star, p: pr.StepProblem):
+    """Identity on the converged ``u_star (N, 3)``; its derivative is the implicit-function one.
+
+    The tangent solve goes through ``lax.custom_linear_solve`` (symmetric), so reverse
+    mode transposes it as the same solve.
+    """
+    return u_star
+
+
+@solution.defjvp
+def _solution_jvp(integ, primals, tangents):
+    u_star, p = primals
+    _, p_dot = tangents
+    rhs = jax.jvp(lambda q: stationarity(u_star, q), (p,), (p_dot,))[1]
+
+    def matvec(w):
+        return jax.jvp(lambda u: stationarity(u, p), (u_star,), (w,))[1]
+
+    N = p.cloth.num_particles
+    if integ.resolved_solver(N) == "dense":
+        def solve(mv, b):
+            eye = jnp.eye(3 * N, dtype=b.dtype).reshape(3 * N, N, 3)
+            A = jax.vmap(mv)(eye).reshape(3 * N, 3 * N)
+            return jnp.linalg.solve(A, b.reshape(-1)).reshape(N, 3)
+    else:
+        Minv = block_jacobi(p, pr.blocks(u_star, p, project_psd=True))
+
+        def solve(mv, b):
+            return pcg(mv, b, jnp.zeros_like(b), Minv, tol=integ.cg_tol, max_iters=integ.cg_max_iters)[0]
+
+    du = lax.custom_linear_solve(matvec, rhs, solve, symmetric=True)
+    return u_star, -du

@@ -1,0 +1,164 @@
+"""Newton's method with a backtracking line search on the step problem (lab Algorithm 2)."""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+from jax import lax
+
+from .._dataclass import pytree_dataclass
+from . import _energy as en
+from . import _problem as pr
+from ._integrators import ImplicitEuler
+from ._linsolve import block_inverse, dense_solve, pcg
+from ._scene import spring_sum
+
+#: Armijo constants of the backtracking line search (lab Algorithm 2).
+BETA, GAMMA = 0.5, 1e-4
+
+
+@pytree_dataclass
+class NewtonState:
+    """The Newton loop's carry.
+
+    Attributes:
+      u: ``(N, 3)`` current displacement ``x - x^n`` (m); 0 on pinned particles.
+      g: ``()`` objective ``g(u)`` (J).
+      grad: ``(N, 3)`` ``grad g(u)`` on free particles, 0 on pinned ones (N).
+      rel: ``()`` relative gradient ``|grad|_inf / scale`` at ``u``.
+      guess: ``(N, 3)`` warm start for the next CG solve (the last step).
+      it: ``()`` int32 iterations taken.
+      cg: ``()`` int32 CG iterations summed.
+      bt: ``()`` int32 line-search halvings summed.
+      alpha: ``()`` last line-search step size.
+      res: ``()`` relative residual of the last linear solve.
+      done: ``()`` bool, the loop has stopped.
+      fail: ``()`` bool, a step produced non-finite values (and was not taken).
+    """
+
+    u: jax.Array
+    g: jax.Array
+    grad: jax.Array
+    rel: jax.Array
+    guess: jax.Array
+    it: jax.Array
+    cg: jax.Array
+    bt: jax.Array
+    alpha: jax.Array
+    res: jax.Array
+    done: jax.Array
+    fail: jax.Array
+
+
+def block_jacobi(p: pr.StepProblem, A):
+    """``r -> D^{-1} r`` with ``D`` the 3x3 diagonal blocks of ``M/h^2 + sum_s A_s`` (identity on pins)."""
+    c, free = p.cloth, p.free
+    D = spring_sum(c, A, signed=False)
+    D = D + (c.mass / p.h**2)[:, None, None] * jnp.eye(3, dtype=A.dtype)
+    D = jnp.where(free[:, :, None] > 0, D, jnp.broadcast_to(jnp.eye(3, dtype=A.dtype), D.shape))
+    Dinv = block_inverse(D)
+    return lambda r: jnp.einsum("nab,nb->na", Dinv, r)
+
+
+def _safe_ratio(num, den):
+    r = num / jnp.maximum(den, jnp.finfo(num.dtype).tiny)
+    return jnp.where(jnp.isfinite(r), r, jnp.inf)
+
+
+def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
+    """Minimise ``g(., p)`` from ``u = 0``.
+
+    Stops when the lab's step test ``max|alpha dx| / h < tol`` holds and the gradient is
+    small (``rel <= rtol``), when the gradient is at rounding level, when the step is
+    at the rounding level of ``u`` (no further progress is possible), or after
+    ``newton_iters`` iterations.  Runs on ``stop_gradient`` inputs: derivatives come from
+    the implicit function theorem instead (``_implicit_diff``).
+    """
+    c, h = p.cloth, p.h
+    N = c.num_particles
+    free = p.free
+    m = c.mass[:, None]
+    dtype = p.x0.dtype
+    eps = jnp.finfo(dtype).eps
+    solver = integ.resolved_solver(N)
+    objective = functools.partial(pr.incremental_potential, p=p)
+    grad = jax.grad(objective)
+    spr_i, spr_j = c.springs[:, 0], c.springs[:, 1]
+
+    def newton_direction(u, gvec, guess):
+        b = -gvec
+        if solver == "dense":
+            if integ.project_psd:
+                H = en.assemble(c, pr.blocks(u, p, project_psd=True)) + jnp.diag(jnp.repeat(c.mass, 3) / h**2)
+            else:
+                H = jax.hessian(objective)(u).reshape(3 * N, 3 * N)
+            f = free.repeat(3, axis=1).reshape(-1)
+            H = H * f[:, None] * f[None, :] + jnp.diag(1.0 - f)
+            dx = dense_solve(H, b.reshape(-1))
+            res = _safe_ratio(jnp.linalg.norm(H @ dx - b.reshape(-1)), jnp.linalg.norm(b))
+            return dx.reshape(N, 3), jnp.int32(0), res
+        if integ.project_psd:  # matrix-free PCG on the projected blocks
+            A = pr.blocks(u, p, project_psd=True)
+
+            def apply_H(v):
+                v = v * free
+                f = jnp.einsum("sab,sb->sa", A, v[spr_j] - v[spr_i])
+                return (spring_sum(c, f) + m / h**2 * v) * free + (1.0 - free) * v
+        else:
+            A = pr.blocks(u, p, project_psd=False)
+
+            def apply_H(v):
+                v = v * free
+                return jax.jvp(grad, (u,), (v,))[1] * free + (1.0 - free) * v
+        dx, k, res = pcg(apply_H, b, guess * free, block_jacobi(p, A), tol=integ.cg_tol, max_iters=integ.cg_max_iters)
+        return dx, k, jnp.where(jnp.isfinite(res), res, jnp.inf)
+
+    def line_search(u, gu, gvec, dx):
+        if not integ.line_search:
+            return dx, jnp.ones((), dtype), jnp.int32(0), objective(u + dx)
+        # keep every step a descent step
+        slope = jnp.sum(gvec * dx)
+        descent = slope < 0
+        dx = jnp.where(descent, dx, -gvec * h**2 / m)
+        slope = jnp.where(descent, slope, jnp.sum(gvec * dx))
+        slack = 8 * eps * jnp.abs(gu)  # g changes by less than its last bits at convergence
+
+        def cond(s):
+            a, k, gnew = s
+            armijo = gnew <= gu + GAMMA * a * slope + slack
+            return (k < integ.max_backtracks) & ~(armijo & jnp.isfinite(gnew))
+
+        def body(s):
+            a, k, _ = s
+            a = BETA * a
+            return a, k + 1, objective(u + a * dx)
+
+        a, k, gnew = lax.while_loop(cond, body, (jnp.ones((), dtype), jnp.int32(0), objective(u + dx)))
+        return dx, a, k, gnew
+
+    def body(s: NewtonState) -> NewtonState:
+        dx, k_cg, res = newton_direction(s.u, s.grad, s.guess)
+        dx, a, k_ls, g_new = line_search(s.u, s.g, s.grad, dx)
+        step = a * dx * free
+        u_new = s.u + step
+        gvec = grad(u_new) * free
+        ok = jnp.all(jnp.isfinite(u_new)) & jnp.isfinite(g_new) & jnp.all(jnp.isfinite(gvec))
+        rel = pr.relative_gradient(gvec, u_new, p)
+        dmax = jnp.max(jnp.abs(step))
+        small_step = dmax / h < integ.tol
+        stalled = dmax <= 4 * eps * jnp.max(jnp.abs(u_new))  # nothing left that the dtype can resolve
+        done = (small_step & (rel <= rtol)) | stalled | (rel <= 4 * eps) | ~ok
+        keep = lambda new, old: jnp.where(ok, new, old)  # noqa: E731
+        return NewtonState(u=keep(u_new, s.u), g=keep(g_new, s.g), grad=keep(gvec, s.grad), rel=keep(rel, s.rel),
+                           guess=keep(step, jnp.zeros_like(step)), it=s.it + 1, cg=s.cg + k_cg, bt=s.bt + k_ls,
+                           alpha=a, res=res, done=done, fail=s.fail | ~ok)
+
+    u0 = jnp.zeros_like(p.x0)
+    g0 = grad(u0) * free
+    z = jnp.zeros((), dtype)
+    s0 = NewtonState(u=u0, g=objective(u0), grad=g0, rel=pr.relative_gradient(g0, u0, p), guess=h * p.v0 * free,
+                     it=jnp.int32(0), cg=jnp.int32(0), bt=jnp.int32(0), alpha=z, res=z,
+                     done=jnp.array(False), fail=jnp.array(False))
+    return lax.while_loop(lambda s: (s.it < integ.newton_iters) & ~s.done, body, s0)

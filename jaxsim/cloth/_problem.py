@@ -1,0 +1,119 @@
+"""One implicit step as a minimisation problem in the step's displacement.
+
+Backward Euler's positions minimise the incremental potential (17.19).  Its unknown here
+is the displacement ``u = x - x^n`` rather than ``x``:
+
+    g(u) = 1/(2h^2) |u - h v^n|_M^2 + sum_s psi(s0_s + (|d0_s + du_s| - l0_s)) - sum_i m_i g . u_i + D(u)
+
+with ``d0 = x^n_j - x^n_i``, ``l0 = |d0|``, ``s0 = l0 - L``, ``du_s = u_j - u_i`` and ``D``
+the frozen-direction damping potential (``_energy`` module doc).  ``g`` differs from
+(17.19) by a constant only, but every term is computed from the motion itself: the
+precision of the solve, the line search and the new velocity ``v = u / h`` is relative
+to the step's motion and not to ``|x|``.  (With ``x`` as the unknown, float32 cannot
+represent a step shorter than ``eps |x|``, about 1e-7 m at the lab's scale; the cloth
+then freezes at small ``dt``.)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+
+from .._dataclass import pytree_dataclass
+from .._dtype import tiny
+from . import _energy as en
+from ._scene import Cloth, spring_sum
+
+
+@pytree_dataclass
+class StepProblem:
+    """Everything one implicit step depends on, computed once per step.
+
+    Attributes:
+      cloth: the scene (an undamped scene has its ``damping`` leaf replaced by 0 so the
+        compiled step never reads it).
+      x0: ``(N, 3)`` positions ``x^n`` (m).
+      v0: ``(N, 3)`` velocities ``v^n`` (m/s).
+      h: ``()`` time step (s).
+      d0: ``(S, 3)`` spring vectors ``x^n_j - x^n_i`` (m).
+      l0: ``(S,)`` their lengths (m).
+      s0: ``(S,)`` stretches ``l0 - L`` (m).
+      e0: ``(S, 3)`` frozen unit damping directions ``d0 / l0`` (``None`` when undamped).
+    """
+
+    cloth: Cloth
+    x0: jax.Array
+    v0: jax.Array
+    h: jax.Array
+    d0: jax.Array
+    l0: jax.Array
+    s0: jax.Array
+    e0: jax.Array | None
+
+    @staticmethod
+    def build(cloth: Cloth, x0, v0, h) -> "StepProblem":
+        """Derive the per-step terms (differentiable in every input)."""
+        if not cloth.damped:
+            cloth = dataclasses.replace(cloth, damping=jnp.zeros((), x0.dtype))
+        e0, d0 = en.spring_directions(cloth, x0)
+        l0 = en._length(d0)
+        return StepProblem(cloth, x0, v0, h, d0, l0, l0 - cloth.rest_length, e0 if cloth.damped else None)
+
+    @property
+    def free(self) -> jax.Array:
+        """``(N, 1)`` 1.0 for free particles, 0.0 for pinned ones (in the scene's dtype)."""
+        return (~self.cloth.pinned)[:, None].astype(self.x0.dtype)
+
+    @property
+    def d_over_h(self):
+        return self.cloth.damping / self.h
+
+    def spring_change(self, u):
+        """``(S, 3)`` change ``u_j - u_i`` of every spring vector."""
+        i, j = self.cloth.springs[:, 0], self.cloth.springs[:, 1]
+        return u[j] - u[i]
+
+
+def incremental_potential(u, p: StepProblem):
+    """``g(u)`` of the module doc (J), for a displacement ``u (N, 3)`` (m)."""
+    c = p.cloth
+    m = c.mass[:, None]
+    r = u - p.h * p.v0
+    inertia = 0.5 / p.h**2 * jnp.sum(m * r * r)
+    springs = jnp.sum(en.step_element(p.spring_change(u), p.d0, p.l0, p.s0, c.stiffness, p.e0, p.d_over_h))
+    return inertia + springs - jnp.sum(m * c.gravity * u)
+
+
+def force_scale(u, p: StepProblem):
+    """``(N,)`` size of the terms that make up ``grad g`` at each particle (N).
+
+    Inertia ``m/h^2 |u - h v^n|`` plus gravity ``m |g|`` plus the magnitudes of the
+    spring (and damping) forces acting on the particle.  The gradient is judged small
+    relative to the largest of these, which is what float rounding can resolve.
+    """
+    c = p.cloth
+    dd = p.spring_change(u)
+    t = jnp.abs(c.stiffness * (p.s0 + en.stretch_increment(p.d0, p.l0, dd)))
+    if p.e0 is not None:
+        t = t + jnp.abs(p.d_over_h * jnp.sum(p.e0 * dd, axis=-1))
+    m = c.mass
+    inertia = m / p.h**2 * en._length(u - p.h * p.v0)
+    return inertia + m * en._length(c.gravity) + spring_sum(c, t, signed=False)
+
+
+def relative_gradient(gvec, u, p: StepProblem):
+    """``max_i |grad_i g| / max_i scale_i`` over free particles (dimensionless, never NaN)."""
+    free = p.free[:, 0] > 0
+    gmax = jnp.max(jnp.where(free, en._length(gvec), 0.0))
+    smax = jnp.max(jnp.where(free, force_scale(u, p), 0.0))
+    rel = gmax / jnp.maximum(smax, tiny(u.dtype))
+    return jnp.where(jnp.isnan(rel), jnp.inf, rel)
+
+
+def blocks(u, p: StepProblem, *, project_psd: bool):
+    """``(S, 3, 3)`` Hessian blocks of the spring and damping terms of ``g`` at ``u``."""
+    c = p.cloth
+    return en.blocks_from_elements(p.d0, p.l0, p.s0, c.stiffness, p.spring_change(u), p.e0,
+                                   p.d_over_h if p.e0 is not None else None, project_psd=project_psd)
