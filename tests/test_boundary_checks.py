@@ -172,3 +172,12 @@ def test_nearest_start_matches_brute_force():
         e = near[deg[near[:, 0], near[:, 1]] == 1]
         want = tuple(int(v) for v in (e if len(e) else near)[0])
         assert _skeleton._nearest_start(todo, deg, pos) == want
+
+
+def test_zero_start_rotation_under_jit_is_the_identity():
+    """Outside jit a zero quaternion raises; inside, where nothing can raise, it is the identity."""
+    raises("zero quaternion", ik.fabrik, ARM, TARGETS[0], np.zeros((5, 4)))
+    for solver in (ik.fabrik, ik.ccd):
+        res = jax.jit(lambda q, f=solver: f(ARM, TARGETS[0], q, max_iters=30))(jnp.zeros((5, 4)))
+        ref = solver(ARM, TARGETS[0], max_iters=30)
+        np.testing.assert_allclose(np.asarray(res.positions), np.asarray(ref.positions), atol=1e-12)

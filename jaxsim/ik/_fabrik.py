@@ -8,6 +8,8 @@ paper's straight line towards the target (one sweep).
 
 from __future__ import annotations
 
+from jax import lax
+
 from . import _joints, _quat
 
 
@@ -39,6 +41,43 @@ def fabrik_sweep(positions, target, root, lengths, fallback, *, unroll: bool):
     P = _joints.loop(0, J - 1, backward, P, unroll=unroll, reverse=True)
     P = _joints.put(P, 0, root)
     return _joints.loop(1, J, forward, P, unroll=unroll)
+
+
+def fabrik_sweep_lean(joints, target, root, lengths, bias):
+    """One backward + forward FABRIK pass, written for large batches.
+
+    The same pass as :func:`fabrik_sweep` on an unrolled chain, with what a batched
+    sweep does not need taken out: the root is not carried (the forward pass pins it),
+    so joint 0 is not placed in the backward pass either, and each bone direction is
+    ``d * rsqrt(d.d)`` with ``d`` offset by ``bias``, a vector of length ``tiny`` along
+    the fallback direction, instead of a zero test and a ``where`` per joint: where two
+    joints coincide the direction is the fallback, elsewhere the offset is far below
+    rounding.
+
+    Args:
+      joints: list of ``J-1`` vector tuples, joints ``1..J-1``.
+      target, root: vector tuples.
+      lengths: ``(J-1,)`` bone lengths.
+      bias: vector tuple, ``tiny * fallback``.
+
+    Returns:
+      The new list of ``J-1`` joints.
+    """
+    n = len(joints)
+    new = list(joints)
+
+    def place(moving, anchor, length):
+        d = tuple(m - a + b for m, a, b in zip(moving, anchor, bias))
+        s = length * lax.rsqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+        return tuple(a + s * c for a, c in zip(anchor, d))
+
+    nxt = new[n - 1] = target
+    for i in range(n - 1, 0, -1):  # joint i (stored at i - 1), towards joint i + 1
+        nxt = new[i - 1] = place(new[i - 1], nxt, lengths[i])
+    prev = root
+    for i in range(1, n + 1):  # joint i, from joint i - 1
+        prev = new[i - 1] = place(new[i - 1], prev, lengths[i - 1])
+    return new
 
 
 def straight_towards(root, target, lengths, fallback):

@@ -64,8 +64,12 @@ def sqnorm(v):
 
 def safe_norm(v):
     """Euclidean norm, with a zero (not NaN) gradient at ``v = 0``; NaN stays NaN."""
-    s = sqnorm(v)
-    ok = ~(s <= tiny(_dtype(v)) ** 2)
+    return safe_sqrt(sqnorm(v))
+
+
+def safe_sqrt(s):
+    """``sqrt(s)`` of a squared norm, with a zero (not NaN) gradient at ``s = 0``."""
+    ok = ~(s <= tiny(s.dtype) ** 2)
     return jnp.where(ok, jnp.sqrt(jnp.where(ok, s, 1.0)), 0.0)
 
 

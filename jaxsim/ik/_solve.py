@@ -19,11 +19,12 @@ from jax import lax
 
 from .. import _sharding
 from .._dataclass import is_concrete
+from .._dtype import tiny
 from .._validate import check_bool, check_finite, check_int, check_tol
 from . import _joints, _quat
 from ._ccd import ccd_sweep
 from ._chain import Chain
-from ._fabrik import fabrik_sweep, rotations_from_positions, straight_towards
+from ._fabrik import fabrik_sweep, fabrik_sweep_lean, rotations_from_positions, straight_towards
 from ._fk import fk, fk_joints
 from ._implicit import implicit_rotations
 from ._result import IKResult
@@ -88,44 +89,48 @@ def _run(offsets, target, local0, tol, *, kind, max_iters, unroll, trace, early_
     P0, G0 = fk(local0)
     L0 = _joints.split(local0, unroll)
 
+    tol2 = tol * tol
+    iters0 = jnp.zeros(B, jnp.int32)
     if kind == "ccd":
         state0 = (L0, _joints.split(P0, unroll), _joints.split(G0, unroll))
 
         def sweep(state):
-            return ccd_sweep(offsets, tgt, *state, B, unroll=unroll)
-
-        def end_of(state):
-            return _joints.get(state[1], J - 1)
-
-        stop_early = jnp.zeros_like(done0)
+            new = ccd_sweep(offsets, tgt, *state, B, unroll=unroll)
+            return new, _quat.sqnorm(_quat.sub(_joints.get(new[1], J - 1), tgt))
     else:
+        # An unreachable target is answered by the straight line towards it: one sweep,
+        # final.  Those elements start the loop done, with that sweep counted.
         fallback = _quat.perpendicular(_quat.sub(tgt, root))
         straight = straight_towards(root, tgt, lengths, fallback)
-        if not unroll:
-            straight = _joints.stack(straight)
-        state0 = _joints.split(P0, unroll)
+        jump = ~reachable & ~done0
+        err0 = jnp.where(jump, _quat.safe_norm(_quat.sub(straight[J - 1], tgt)), err0)
+        iters0 = jump.astype(jnp.int32)
+        done0 = done0 | ~reachable
+        if unroll:  # the lean batched sweep on joints 1..J-1 (the root never moves)
+            state0 = [_quat.where(jump, st, p) for st, p in zip(straight[1:], _joints.split(P0, True)[1:])]
+            bias = _quat.scale(tiny(dtype), fallback)
 
-        def sweep(state):
-            new = fabrik_sweep(state, tgt, root, lengths, fallback, unroll=unroll)
-            return _quat.where(reachable, new, straight)
+            def sweep(state):
+                new = fabrik_sweep_lean(state, tgt, root, lengths, bias)
+                return new, _quat.sqnorm(_quat.sub(new[-1], tgt))
+        else:
+            state0 = jnp.where(jump, _joints.stack(straight), P0)
 
-        def end_of(state):
-            return _joints.get(state, J - 1)
-
-        stop_early = ~reachable  # the straight line is final
+            def sweep(state):
+                new = fabrik_sweep(state, tgt, root, lengths, fallback, unroll=False)
+                return new, _quat.sqnorm(_quat.sub(_joints.get(new, J - 1), tgt))
 
     def body(carry, _):
         state, err, iters, done = carry
-        new = sweep(state)
-        new_err = _quat.safe_norm(_quat.sub(end_of(new), tgt))
+        new, e2 = sweep(state)
         state = _quat.where(done, state, new)
-        err = jnp.where(done, err, new_err)
         iters = iters + (~done).astype(jnp.int32)
-        done = done | (err <= tol) | stop_early
+        if trace:  # the error is carried only when a per-sweep trace is asked for
+            err = jnp.where(done, err, _quat.safe_sqrt(e2))
+        done = done | (e2 <= tol2)
         return (state, err, iters, done), (err if trace else None)
 
-    iters0 = jnp.zeros(B, jnp.int32)
-    carry0 = (state0, err0, iters0, done0)
+    carry0 = (state0, err0 if trace else None, iters0, done0)
     if not early_exit:
         (state, _, iters, _), errs = lax.scan(body, carry0, None, length=max_iters)
     else:
@@ -148,6 +153,8 @@ def _run(offsets, target, local0, tol, *, kind, max_iters, unroll, trace, early_
             rows = jnp.arange(max_iters).reshape((max_iters,) + (1,) * len(B))
             errs = jnp.where(rows < k, buf, err_last)
 
+    if kind == "fabrik" and unroll:
+        state = [root] + list(state)
     if kind == "ccd":
         local, P, _ = state
     else:
@@ -194,6 +201,7 @@ def _solve(kind, chain, target, rotations, *, max_iters, tol, trace, unroll, ear
     target = target_in = jnp.asarray(target, dtype)
     rotations = chain.rest_rotations() if rotations is None else jnp.asarray(rotations, dtype)
     _check_target_and_rotations(chain, target, rotations)
+    rotations = _quat.unit_quaternions(rotations)  # under jit: a zero quaternion is the identity, never NaN
     batch = jnp.broadcast_shapes(target.shape[:-1], rotations.shape[:-2])
     target = jnp.broadcast_to(target, batch + (3,))
     rotations = jnp.broadcast_to(rotations, batch + rotations.shape[-2:])

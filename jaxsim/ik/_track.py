@@ -118,6 +118,7 @@ def track(chain: Chain, targets, *, solver: str = "fabrik", rotations=None, max_
     if rotations.shape != (J, 4):
         raise ValueError(f"rotations must have shape ({J}, 4), got {rotations.shape}")
     _check_target_and_rotations(chain, targets, rotations)
+    rotations = _quat.unit_quaternions(rotations)
     if max_step_angle is not None and is_concrete(max_step_angle):
         check_real("max_step_angle", max_step_angle, minimum=0.0, strict=True)
     local, P, err, iters, conv, reachable, errs = _track(
