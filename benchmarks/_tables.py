@@ -17,16 +17,18 @@ def load(name):
 
 def ik_table():
     d = load("ik_throughput")
-    out = ["| solver | setting | layout | M solves/s | run (ms) | compile (s) | mean sweeps |", "|---|---|---|---|---|---|---|"]
+    out = ["| solver | setting | layout | M solves/s | run (ms) | compile (s) | mean sweeps | HLO fusions |",
+           "|---|---|---|---|---|---|---|---|"]
     for r in d["rows"]:
         if r["solver"] == "ikpy":
-            out.append(f"| ikpy | default | `inverse_kinematics`, one target | {r['solves_per_s'] / 1e6:.6f} | | | |")
+            out.append(f"| ikpy | default | `inverse_kinematics`, one target | {r['solves_per_s'] / 1e6:.6f} | | | | |")
             continue
         layout = r["label"].split(r["mode"])[-1].strip() or r["label"].split(" ")[0] + ", vectorised over targets"
         comp = f"{r['compile_s']:.2f}" if "compile_s" in r else "–"
         its = f"{r['mean_iterations']:.1f}" if "mean_iterations" in r else "–"
+        fus = str(r["hlo_fusions"]) if "hlo_fusions" in r else "–"
         out.append(f"| {r['solver']} | {r['mode']} | {layout} | {r['solves_per_s'] / 1e6:.3f} | "
-                   f"{1e3 * r['run_s']:.1f} | {comp} | {its} |")
+                   f"{1e3 * r['run_s']:.1f} | {comp} | {its} | {fus} |")
     s = d["summary"]
     out += ["", f"FABRIK vs the numpy baseline: {s['fabrik_speedup_vs_numpy']:.1f}x; max |difference| to it on reachable "
             f"targets {s['max_abs_diff_vs_numpy_fabrik']:.1e}."]

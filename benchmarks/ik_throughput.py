@@ -4,6 +4,9 @@ Settings: (a) exactly 10 sweeps (tol=0), (b) tol=1e-4 with max_iters=100.  Basel
 the same run: a numpy-vectorised FABRIK written here, ``jax.vmap`` of the one-target
 solver (batch leading), the rolled joint loop, and ikpy if installed.
 
+Each ``solve`` row also records ``hlo_fusions``, the fusion count of its optimised HLO
+(``jax.jit(f).lower(t).compile().as_text()``).
+
 Run: ``python benchmarks/ik_throughput.py [--n 100000]``; writes
 ``benchmarks/results/ik_throughput.json``.
 """
@@ -74,7 +77,9 @@ def main():
                     chain, t, solver=solver, unroll=unroll, early_exit=early, **kw))
                 timing = time_call(fn, targets)
                 res = fn(targets)
-                extra = {"unrolled": unroll, "early_exit": early, "mean_iterations": float(jnp.mean(res.iterations)),
+                hlo = fn.lower(targets).compile().as_text()  # optimised HLO: fusions in the whole solve
+                extra = {"unrolled": unroll, "early_exit": early, "hlo_fusions": hlo.count(" fusion("),
+                         "mean_iterations": float(jnp.mean(res.iterations)),
                          "converged_fraction": float(jnp.mean(res.converged)),
                          "reachable_fraction": float(jnp.mean(res.reachable))}
                 record(f"{solver} {mode} solve unroll={unroll} early_exit={early}", solver, mode, timing, n, extra)

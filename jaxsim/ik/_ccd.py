@@ -48,3 +48,48 @@ def ccd_sweep(offsets, target, local, positions, frames, batch_shape, *, unroll:
     L, _ = _joints.loop(0, J - 1, body, (local, _joints.get(positions, J - 1)), unroll=unroll, reverse=True)
     P, G = fk_joints(offsets, L, batch_shape, unroll=unroll)
     return L, P, G
+
+
+def ccd_sweep_frames(offsets, target, frames, root):
+    """One CCD sweep for large batches, on the global frames alone.
+
+    The same sweep as :func:`ccd_sweep`, carried as the ``J`` global frames instead of
+    local rotations, positions and frames (24 arrays instead of 66 for six joints):
+    joint positions come from the frames, the arcs ``r_i`` are taken tip to root while
+    the end effector is swung along, and the new frames are ``G'_i = r_0 r_1 ... r_i G_i``
+    (a joint's turn carries every frame below it).  The local rotations
+    ``L_i = G_{i-1}^{-1} G_i`` are rebuilt once, after the last sweep
+    (:func:`locals_from_frames`).
+
+    Args:
+      offsets: ``(J, 3)``.
+      target, root: vector tuples.
+      frames: list of ``J`` unit quaternion tuples.
+
+    Returns:
+      ``(frames, end_sq_error)``: the new frames (renormalised) and ``|end - target|^2``.
+    """
+    J = offsets.shape[0]
+    P = [root]
+    for k in range(1, J):
+        P.append(_quat.add(P[k - 1], _quat.rotate(frames[k - 1], _quat.unstack(offsets[k]))))
+    end = P[J - 1]
+    arcs = [None] * (J - 1)
+    for i in range(J - 2, -1, -1):
+        a = _quat.sub(end, P[i])
+        arcs[i] = _quat.from_two_vectors(a, _quat.sub(target, P[i]))
+        end = _quat.add(P[i], _quat.rotate(arcs[i], a))
+    new, C = [], None
+    for i in range(J - 1):
+        C = arcs[i] if C is None else _quat.mul(C, arcs[i])
+        new.append(_quat.renormalize(_quat.mul(C, frames[i])))
+    new.append(_quat.renormalize(_quat.mul(C, frames[J - 1])))
+    return new, _quat.sqnorm(_quat.sub(end, target))
+
+
+def locals_from_frames(frames):
+    """Local rotations ``L_0 = G_0``, ``L_i = G_{i-1}^{-1} G_i`` (renormalised) of a list of frames."""
+    out = [_quat.renormalize(frames[0])]
+    for i in range(1, len(frames)):
+        out.append(_quat.renormalize(_quat.mul(_quat.conj(frames[i - 1]), frames[i])))
+    return out

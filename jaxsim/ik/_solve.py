@@ -22,7 +22,7 @@ from .._dataclass import is_concrete
 from .._dtype import tiny
 from .._validate import check_bool, check_finite, check_int, check_tol
 from . import _joints, _quat
-from ._ccd import ccd_sweep
+from ._ccd import ccd_sweep, ccd_sweep_frames, locals_from_frames
 from ._chain import Chain
 from ._fabrik import fabrik_sweep, fabrik_sweep_lean, rotations_from_positions, straight_towards
 from ._fk import fk, fk_joints
@@ -61,9 +61,46 @@ def break_symmetry(local, positions, frames, target, reach, done, batch_shape):
     return jnp.where(need, local.at[m].set(_quat.stack(lm)), local)
 
 
+def break_symmetry_lists(local, positions, frames, target, reach, done):
+    """:func:`break_symmetry` on per-joint lists, without a second FK over the batch.
+
+    Turning joint ``m``'s global frame by ``r`` turns every frame below it and swings
+    every joint below it about joint ``m``: ``G_k <- r G_k`` (``k >= m``),
+    ``P_k <- P_m + r (P_k - P_m)`` (``k > m``), applied where the pose needs it.  Entries
+    may have no batch axis (a start pose shared by the batch); the bent ones gain it.
+    """
+    J = len(local)
+    root = positions[0]
+    to_target = _quat.sub(target, root)
+    chain_dir = _quat.normalize(_quat.sub(positions[J - 1], root), _quat.perpendicular(to_target))
+    ray = _quat.normalize(to_target, chain_dir)
+    off_line = functools.reduce(jnp.maximum, [_quat.safe_norm(_quat.cross(_quat.sub(p, root), ray)) for p in positions])
+    need = (off_line <= 1e-6 * reach) & ~done
+    m = 1 if J > 2 else 0
+    half = 0.5 * SYMMETRY_BREAK_ANGLE
+    axis = _quat.perpendicular(ray)
+    r = (jnp.full_like(axis[0], np.cos(half)), *_quat.scale(float(np.sin(half)), axis))
+    g_parent = frames[m - 1] if m > 0 else _quat.identity((), local[0][0].dtype)
+    lm = _quat.mul(_quat.conj(g_parent), _quat.mul(r, _quat.mul(g_parent, local[m])))
+    local, positions, frames = list(local), list(positions), list(frames)
+    local[m] = _quat.where(need, lm, local[m])
+    pm = positions[m]
+    for k in range(m + 1, J):
+        positions[k] = _quat.where(need, _quat.add(pm, _quat.rotate(r, _quat.sub(positions[k], pm))), positions[k])
+    for k in range(m, J):
+        frames[k] = _quat.where(need, _quat.mul(r, frames[k]), frames[k])
+    return local, positions, frames
+
+
 @functools.partial(jax.jit, static_argnames=("kind", "max_iters", "unroll", "trace", "early_exit"))
 def _run(offsets, target, local0, tol, *, kind, max_iters, unroll, trace, early_exit=False):
-    """The solver on component-first arrays: ``target (3, *B)``, ``local0 (J, 4, *B)``.
+    """The solver on component-first arrays: ``target (3, *B)``, ``local0 (J, 4, *B)``
+    or ``(J, 4)`` (one start pose for the whole batch).
+
+    Unrolled (batches): per-joint lists; a shared start pose goes through FK once, and
+    the sweeps are the lean batched ones (``fabrik_sweep_lean``, ``ccd_sweep_frames``).
+    Rolled (single targets, long chains): stacked ``(J, C, *B)`` arrays in a
+    ``fori_loop`` over joints.
 
     Returns stacked ``local (J, 4, *B)``, ``positions (J, 3, *B)``, and ``(*B)`` error,
     iterations, converged, reachable, plus the ``(max_iters, *B)`` trace or ``None``.
@@ -75,27 +112,45 @@ def _run(offsets, target, local0, tol, *, kind, max_iters, unroll, trace, early_
     root = tuple(jnp.broadcast_to(c, B) for c in _quat.unstack(offsets[0]))
     lengths = jnp.sqrt(jnp.sum(offsets[1:] ** 2, axis=-1))
     reach = jnp.sum(lengths)
-    local0 = _quat.stack(_quat.renormalize(_quat.unstack(local0, axis=1)), axis=1)
-
-    def fk(local_stacked):
-        P, G = fk_joints(offsets, _joints.split(local_stacked, unroll), B, unroll=unroll)
-        return _joints.stack(P), _joints.stack(G)
-
-    P0, G0 = fk(local0)
-    err0 = _quat.safe_norm(_quat.sub(_quat.unstack(P0[J - 1]), tgt))
-    done0 = err0 <= tol
     reachable = _quat.safe_norm(_quat.sub(tgt, root)) <= reach
-    local0 = break_symmetry(local0, P0, G0, tgt, reach, done0, B)
-    P0, G0 = fk(local0)
-    L0 = _joints.split(local0, unroll)
+
+    if unroll:
+        own = local0.shape[2:]  # () for a shared start pose
+        L0 = [_quat.renormalize(_quat.unstack(local0[i])) for i in range(J)]
+        P0, G0 = fk_joints(offsets, L0, own, unroll=True)
+        err0 = _quat.safe_norm(_quat.sub(P0[J - 1], tgt))
+        done0 = err0 <= tol
+        L0, P0, G0 = break_symmetry_lists(L0, P0, G0, tgt, reach, done0)
+    else:
+        local0 = jnp.broadcast_to(local0.reshape(local0.shape + (1,) * (len(B) + 2 - local0.ndim)), (J, 4) + B)
+        local0 = _quat.stack(_quat.renormalize(_quat.unstack(local0, axis=1)), axis=1)
+
+        def fk(local_stacked):
+            P, G = fk_joints(offsets, _joints.split(local_stacked, False), B, unroll=False)
+            return _joints.stack(P), _joints.stack(G)
+
+        P0, G0 = fk(local0)
+        err0 = _quat.safe_norm(_quat.sub(_quat.unstack(P0[J - 1]), tgt))
+        done0 = err0 <= tol
+        local0 = break_symmetry(local0, P0, G0, tgt, reach, done0, B)
+        P0, G0 = fk(local0)
+        L0 = local0
+
+    def batched(v):  # a loop carry needs the full batch shape
+        return tuple(jnp.broadcast_to(c, B) for c in v)
 
     tol2 = tol * tol
     iters0 = jnp.zeros(B, jnp.int32)
-    if kind == "ccd":
-        state0 = (L0, _joints.split(P0, unroll), _joints.split(G0, unroll))
+    if kind == "ccd" and unroll:
+        state0 = [batched(g) for g in G0]
+
+        def sweep(frames):
+            return ccd_sweep_frames(offsets, tgt, frames, root)
+    elif kind == "ccd":
+        state0 = (L0, P0, G0)
 
         def sweep(state):
-            new = ccd_sweep(offsets, tgt, *state, B, unroll=unroll)
+            new = ccd_sweep(offsets, tgt, *state, B, unroll=False)
             return new, _quat.sqnorm(_quat.sub(_joints.get(new[1], J - 1), tgt))
     else:
         # An unreachable target is answered by the straight line towards it: one sweep,
@@ -107,7 +162,7 @@ def _run(offsets, target, local0, tol, *, kind, max_iters, unroll, trace, early_
         iters0 = jump.astype(jnp.int32)
         done0 = done0 | ~reachable
         if unroll:  # the lean batched sweep on joints 1..J-1 (the root never moves)
-            state0 = [_quat.where(jump, st, p) for st, p in zip(straight[1:], _joints.split(P0, True)[1:])]
+            state0 = [batched(_quat.where(jump, st, p)) for st, p in zip(straight[1:], P0[1:])]
             bias = _quat.scale(tiny(dtype), fallback)
 
             def sweep(state):
@@ -130,7 +185,7 @@ def _run(offsets, target, local0, tol, *, kind, max_iters, unroll, trace, early_
         done = done | (e2 <= tol2)
         return (state, err, iters, done), (err if trace else None)
 
-    carry0 = (state0, err0 if trace else None, iters0, done0)
+    carry0 = (state0, jnp.broadcast_to(err0, B) if trace else None, iters0, jnp.broadcast_to(done0, B))
     if not early_exit:
         (state, _, iters, _), errs = lax.scan(body, carry0, None, length=max_iters)
     else:
@@ -153,13 +208,16 @@ def _run(offsets, target, local0, tol, *, kind, max_iters, unroll, trace, early_
             rows = jnp.arange(max_iters).reshape((max_iters,) + (1,) * len(B))
             errs = jnp.where(rows < k, buf, err_last)
 
-    if kind == "fabrik" and unroll:
-        state = [root] + list(state)
-    if kind == "ccd":
-        local, P, _ = state
+    if kind == "ccd" and unroll:
+        local = [batched(q) for q in locals_from_frames(state)]
+    elif kind == "ccd":
+        local = state[0]
     else:
-        local = rotations_from_positions(offsets, L0, state, B, unroll=unroll)
-        P, _ = fk_joints(offsets, local, B, unroll=unroll)
+        positions = [root] + list(state) if unroll else state
+        local = rotations_from_positions(offsets, L0, positions, B, unroll=unroll)
+        if unroll:
+            local = [batched(q) for q in local]
+    P, _ = fk_joints(offsets, local, B, unroll=unroll)
     err = _quat.safe_norm(_quat.sub(_joints.get(P, J - 1), tgt))
     return _joints.stack(local).astype(dtype), _joints.stack(P), err, iters, err <= tol, reachable, errs
 
@@ -204,23 +262,26 @@ def _solve(kind, chain, target, rotations, *, max_iters, tol, trace, unroll, ear
     rotations = _quat.unit_quaternions(rotations)  # under jit: a zero quaternion is the identity, never NaN
     batch = jnp.broadcast_shapes(target.shape[:-1], rotations.shape[:-2])
     target = jnp.broadcast_to(target, batch + (3,))
-    rotations = jnp.broadcast_to(rotations, batch + rotations.shape[-2:])
+    shared = rotations.ndim == 2  # one start pose for the whole batch: FK of it once
+    full_rotations = jnp.broadcast_to(rotations, batch + rotations.shape[-2:])
     n = int(np.prod(batch))
     mesh = _sharding.batch_mesh(sharded, n) if batch else None
     if mesh is not None:  # split the flattened batch over the local devices
-        (tflat, rflat), pad = _sharding.shard_leading((target.reshape(n, 3), rotations.reshape((n,) + rotations.shape[-2:])), mesh, n)
+        (tflat, rflat), pad = _sharding.shard_leading((target.reshape(n, 3), full_rotations.reshape((n,) + rotations.shape[-2:])), mesh, n)
         res = _solve(kind, chain, tflat, rflat, max_iters=max_iters, tol=tol, trace=trace, unroll=unroll,
                      early_exit=early_exit, implicit_diff=implicit_diff, sharded=False)
         res = _sharding.unpad(res, pad)
         return jax.tree_util.tree_map(lambda a: a.reshape(batch + a.shape[1:]), res)
     J = chain.num_joints
     offsets = chain.offsets
+    if not shared:
+        rotations = full_rotations
     if implicit_diff:  # the sweeps are not differentiated; see _implicit
         offsets, target, rotations = (lax.stop_gradient(a) for a in (offsets, target, rotations))
     local, P, err, iters, conv, reachable, errs = _run(
         offsets,
         jnp.moveaxis(target, -1, 0),
-        jnp.moveaxis(rotations, (-2, -1), (0, 1)),
+        jnp.moveaxis(rotations, (-2, -1), (0, 1)),  # (J, 4) when shared, else (J, 4, *B)
         jnp.asarray(tol, dtype),
         kind=kind,
         max_iters=int(max_iters),
