@@ -46,11 +46,15 @@ def test_float32_stiff_cloth_is_right_or_flagged(stiffness):
     d32, i32 = run(np.float32, 1 / 60, 30, stiffness)
     conv = np.asarray(i32.converged)
     assert abs(d32 - d64) <= 0.02 * d64 or conv.mean() < 0.1, (d32, d64, conv.mean())
-    if stiffness == 1e12:
-        # float32 cannot resolve these springs' stretch (k eps L ~ 1e4 N per spring): the
-        # steps must say so instead of claiming convergence after one iteration
-        assert conv.mean() < 0.1
-        assert float(jnp.min(i32.rel_grad)) > C.ImplicitEuler().resolved_rtol(np.float32)
+    # a step that claims convergence has a small gradient, and such claims come with the
+    # float64 motion (before, every step claimed convergence after one iteration while the
+    # cloth stood still: drop 3e-5 m against 0.109 m)
+    rtol = C.ImplicitEuler().resolved_rtol(np.float32)
+    assert np.all(np.asarray(i32.rel_grad)[conv] <= rtol)
+    assert np.all(np.asarray(i32.rel_grad)[~conv] > rtol)
+    if conv.any():
+        assert abs(d32 - d64) <= 0.02 * d64, (d32, d64)
+    assert bool(jnp.all(i32.stable)) and not np.all(np.asarray(i32.newton_iters) == 1)
 
 
 def test_converged_means_small_relative_gradient():
@@ -186,3 +190,44 @@ def test_stretch_increment_has_no_cancellation():
     assert got == pytest.approx(want, rel=1e-6)
     naive = float(jnp.linalg.norm(d0 + dd) - jnp.linalg.norm(d0))
     assert naive != pytest.approx(want, rel=1e-2)  # the subtraction the step no longer does
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_stiff_light_cloth_converges_every_step(dtype):
+    """Scene C's regime (total mass 1, k = 1e3, g = 9.8, dt = 1/30) on a 16x16 grid: the
+    default (exact Hessian, projected only where it is not positive definite) converges
+    every step; always clamping the compression eigenvalues (the lab's choice) makes
+    Newton linear and runs into the iteration cap."""
+    n = 16
+    c = C.grid(n - 1, 0.2, mass=1.0 / n**2, stiffness=1e3, gravity=9.8, dtype=dtype)
+    s0 = C.State.at_rest(c)
+    _, infos = C.rollout(c, s0, 1 / 30, 20, C.ImplicitEuler(solver="cg"))
+    assert bool(jnp.all(infos.converged)) and int(jnp.max(infos.newton_iters)) <= 10
+    if dtype == np.float64:
+        _, clamped = C.rollout(c, s0, 1 / 30, 20, C.ImplicitEuler(solver="cg", project_psd=True))
+        assert not bool(jnp.all(clamped.converged)) and int(jnp.max(clamped.newton_iters)) == 20
+
+
+def test_auto_projection_falls_back_on_an_indefinite_hessian():
+    """A cloth crushed to 1% of its size: its spring blocks have negative eigenvalues.
+    Whether "auto" keeps the exact Hessian or falls back to the projected one, the step
+    must be a stable descent of the incremental potential."""
+    c = C.lab_cloth(dtype=np.float64)
+    centre = jnp.mean(c.rest, axis=0)
+    x0 = jnp.where(c.pinned[:, None], c.rest, centre + 0.01 * (c.rest - centre))
+    s0 = C.State(x0, jnp.zeros_like(x0))
+    for solver in ("cg", "dense"):
+        integ = C.ImplicitEuler(solver=solver)
+        s, info = C.step(c, s0, 1 / 60, integ)
+        assert bool(info.stable) and np.all(np.isfinite(np.asarray(s.x)))
+        from jaxsim.cloth import _problem
+
+        p = _problem.StepProblem.build(c, s0.x, s0.v, jnp.asarray(1 / 60))
+        g0 = float(_problem.incremental_potential(jnp.zeros_like(x0), p))
+        g1 = float(_problem.incremental_potential(s.x - s0.x, p))
+        assert g1 < g0  # descent, despite the indefinite exact Hessian
+    # the compressed springs' exact blocks are indeed indefinite there
+    from jaxsim.cloth import _energy
+
+    A = _energy.element_blocks(c, x0, project_psd=False)
+    assert float(jnp.min(jnp.linalg.eigvalsh(A))) < 0

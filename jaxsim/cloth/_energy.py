@@ -144,15 +144,19 @@ def blocks_from_elements(d0, l0, s0, k, dd, e0=None, d_over_h=None, *, project_p
         A = jax.vmap(hess)(dd, d0, l0, s0, k)
     else:
         A = jax.vmap(hess, in_axes=(0, 0, 0, 0, 0, 0, None))(dd, d0, l0, s0, k, e0, d_over_h)
-    if project_psd:
-        d = d0 + dd
-        n = _length(d)[:, None]
-        e = jnp.where(n > 0, d / jnp.where(n > 0, n, 1.0), 0.0)
-        eAe = jnp.einsum("si,sij,sj->s", e, A, e)
-        lam_perp = 0.5 * (jnp.trace(A, axis1=1, axis2=2) - eAe)
-        P = jnp.eye(3, dtype=A.dtype) - e[:, :, None] * e[:, None, :]
-        A = A + jnp.maximum(-lam_perp, 0.0)[:, None, None] * P
-    return A
+    return psd_projection(A, d0 + dd) if project_psd else A
+
+
+def psd_projection(A, d):
+    """Blocks ``A (S, 3, 3)`` of springs along ``d (S, 3)`` with the perpendicular
+    eigenvalue ``k (1 - L/l)`` clamped at 0: the exact PSD projection of a spring block
+    (whose other eigenvalue, along ``d``, is ``k >= 0``; damping adds a PSD term)."""
+    n = _length(d)[:, None]
+    e = jnp.where(n > 0, d / jnp.where(n > 0, n, 1.0), 0.0)
+    eAe = jnp.einsum("si,sij,sj->s", e, A, e)
+    lam_perp = 0.5 * (jnp.trace(A, axis1=1, axis2=2) - eAe)
+    P = jnp.eye(3, dtype=A.dtype) - e[:, :, None] * e[:, None, :]
+    return A + jnp.maximum(-lam_perp, 0.0)[:, None, None] * P
 
 
 def element_blocks(cloth: Cloth, x, damping_terms=None, *, project_psd: bool):

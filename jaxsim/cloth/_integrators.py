@@ -54,7 +54,12 @@ class ImplicitEuler:
         forces; ``jaxsim.cloth._problem.force_scale``).  ``None``: ``DEFAULT_RTOL`` of
         the scene's dtype.
       line_search: backtracking (Armijo) line search, Algorithm 2 of the lab.
-      project_psd: clamp each spring block's negative (compression) eigenvalue at 0.
+      project_psd: ``"auto"`` (default): Newton uses the exact spring blocks, and only when
+        the Hessian they make is not positive definite (PCG meets non-positive
+        curvature, or Cholesky fails) is that iteration's direction recomputed with
+        every block projected.  ``True``: always clamp each spring block's negative
+        (compression) eigenvalue at 0 (the lab's choice; on stiff, light cloth it turns
+        Newton's quadratic convergence into linear).  ``False``: never project.
       cg_tol: relative residual at which PCG stops.
       cg_max_iters: PCG iteration cap per Newton iteration.
       max_backtracks: line-search halvings before giving up on a step.
@@ -65,7 +70,7 @@ class ImplicitEuler:
     tol: float = 1e-6
     rtol: float | None = None
     line_search: bool = True
-    project_psd: bool = True
+    project_psd: bool | str = "auto"
     cg_tol: float = 1e-6
     cg_max_iters: int = 500
     max_backtracks: int = 30
@@ -82,7 +87,8 @@ class ImplicitEuler:
         if self.rtol is not None:
             set_("rtol", check_real("rtol", self.rtol, minimum=0.0))
         set_("line_search", check_bool("line_search", self.line_search))
-        set_("project_psd", check_bool("project_psd", self.project_psd))
+        if self.project_psd != "auto":
+            set_("project_psd", check_bool("project_psd (True, False or 'auto')", self.project_psd))
 
     def resolved_rtol(self, dtype) -> float:
         """``rtol``, or the dtype's default (``DEFAULT_RTOL``)."""

@@ -25,7 +25,8 @@ def pcg(apply_A, b, x0, apply_Minv, *, tol, max_iters: int):
       b, x0: right-hand side and initial guess (any shape).
 
     Returns:
-      ``(x, iterations, relative_residual)``.
+      ``(x, iterations, relative_residual, broke)``; ``broke`` is True when a
+      non-positive curvature ``p.Ap <= 0`` was met (the operator is not positive definite).
     """
     dot = lambda u, v: jnp.sum(u * v)  # noqa: E731
     bnorm = jnp.sqrt(dot(b, b))
@@ -53,9 +54,9 @@ def pcg(apply_A, b, x0, apply_Minv, *, tol, max_iters: int):
         p = z + beta * p
         return x, r, z, p, rz_new, k + 1, broke
 
-    x, r, _, _, _, k, _ = lax.while_loop(cond, body, state)
+    x, r, _, _, _, k, broke = lax.while_loop(cond, body, state)
     rel = jnp.sqrt(dot(r, r)) / jnp.where(bnorm > 0, bnorm, 1.0)
-    return x, k, rel
+    return x, k, rel, broke
 
 
 def block_inverse(blocks):

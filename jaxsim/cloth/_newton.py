@@ -87,33 +87,58 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
     grad = jax.grad(objective)
     spr_i, spr_j = c.springs[:, 0], c.springs[:, 1]
 
+    projection = integ.project_psd  # True, False or "auto"
+    f3 = free.repeat(3, axis=1).reshape(-1)
+
+    def dense_direction(b, A):
+        H = en.assemble(c, A) + jnp.diag(jnp.repeat(c.mass, 3) / h**2)
+        H = H * f3[:, None] * f3[None, :] + jnp.diag(1.0 - f3)
+        dx = dense_solve(H, b.reshape(-1))
+        res = _safe_ratio(jnp.linalg.norm(H @ dx - b.reshape(-1)), jnp.linalg.norm(b))
+        return dx.reshape(N, 3), jnp.int32(0), res
+
+    def cg_direction(b, A, guess, Minv):
+        def apply_H(v):
+            v = v * free
+            f = jnp.einsum("sab,sb->sa", A, v[spr_j] - v[spr_i])
+            return (spring_sum(c, f) + m / h**2 * v) * free + (1.0 - free) * v
+
+        dx, k, res, broke = pcg(apply_H, b, guess * free, Minv, tol=integ.cg_tol, max_iters=integ.cg_max_iters)
+        return dx, k, jnp.where(jnp.isfinite(res), res, jnp.inf), broke
+
     def newton_direction(u, gvec, guess):
         b = -gvec
-        if solver == "dense":
-            if integ.project_psd:
-                H = en.assemble(c, pr.blocks(u, p, project_psd=True)) + jnp.diag(jnp.repeat(c.mass, 3) / h**2)
-            else:
-                H = jax.hessian(objective)(u).reshape(3 * N, 3 * N)
-            f = free.repeat(3, axis=1).reshape(-1)
-            H = H * f[:, None] * f[None, :] + jnp.diag(1.0 - f)
+        if solver == "dense" and projection is False:
+            H = jax.hessian(objective)(u).reshape(3 * N, 3 * N)
+            H = H * f3[:, None] * f3[None, :] + jnp.diag(1.0 - f3)
             dx = dense_solve(H, b.reshape(-1))
             res = _safe_ratio(jnp.linalg.norm(H @ dx - b.reshape(-1)), jnp.linalg.norm(b))
             return dx.reshape(N, 3), jnp.int32(0), res
-        if integ.project_psd:  # matrix-free PCG on the projected blocks
-            A = pr.blocks(u, p, project_psd=True)
-
-            def apply_H(v):
-                v = v * free
-                f = jnp.einsum("sab,sb->sa", A, v[spr_j] - v[spr_i])
-                return (spring_sum(c, f) + m / h**2 * v) * free + (1.0 - free) * v
-        else:
-            A = pr.blocks(u, p, project_psd=False)
-
+        A_exact = pr.blocks(u, p, project_psd=False)
+        A_psd = en.psd_projection(A_exact, p.d0 + p.spring_change(u))
+        if solver == "dense":
+            if projection is True:
+                return dense_direction(b, A_psd)
+            # "auto": the exact Hessian; Cholesky of an indefinite one gives non-finite values
+            dx, k, res = dense_direction(b, A_exact)
+            return lax.cond(jnp.all(jnp.isfinite(dx)), lambda: (dx, k, res), lambda: dense_direction(b, A_psd))
+        Minv = block_jacobi(p, A_psd)  # an SPD preconditioner in every mode
+        if projection is True:
+            return cg_direction(b, A_psd, guess, Minv)[:3]
+        if projection is False:  # the exact Hessian, through the autodiff Hessian-vector product
             def apply_H(v):
                 v = v * free
                 return jax.jvp(grad, (u,), (v,))[1] * free + (1.0 - free) * v
-        dx, k, res = pcg(apply_H, b, guess * free, block_jacobi(p, A), tol=integ.cg_tol, max_iters=integ.cg_max_iters)
-        return dx, k, jnp.where(jnp.isfinite(res), res, jnp.inf)
+
+            dx, k, res, _ = pcg(apply_H, b, guess * free, Minv, tol=integ.cg_tol, max_iters=integ.cg_max_iters)
+            return dx, k, jnp.where(jnp.isfinite(res), res, jnp.inf)
+        dx, k, res, broke = cg_direction(b, A_exact, guess, Minv)
+
+        def projected():
+            dx2, k2, res2, _ = cg_direction(b, A_psd, guess, Minv)
+            return dx2, k + k2, res2
+
+        return lax.cond(broke, projected, lambda: (dx, k, res))
 
     def line_search(u, gu, gvec, dx):
         if not integ.line_search:

@@ -1,0 +1,55 @@
+"""Newton on stiff, light cloth (scene C): the default projection against always projecting.
+
+Scene C: a 32x32 grid of total mass 1 (spacing 0.2, g = 9.8, dt = 1/30), k = 1e3 and 1e5,
+20 steps from rest with CG, float64 and float32.  ``project_psd="auto"`` (the default:
+exact Hessian, projected only where it is not positive definite) against ``True`` (every
+compression eigenvalue clamped, the lab's choice).  Reports Newton and CG iterations per
+step and the share of steps converged (``StepInfo.converged``: the gradient test); ms per
+step is the 20-step rollout's warm wall time over 20 (compile apart; a shared machine).
+
+Run: ``python benchmarks/cloth_stiff.py``; writes ``benchmarks/results/cloth_stiff.json``.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+import numpy as np  # noqa: E402
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from _common import time_call, write  # noqa: E402
+
+from jaxsim import cloth as C  # noqa: E402
+
+N, STEPS = 32, 20
+
+
+def main() -> None:
+    rows = []
+    for k in (1e3, 1e5):
+        for dtype in (np.float64, np.float32):
+            c = C.grid(N - 1, 0.2, mass=1.0 / N**2, stiffness=k, gravity=9.8, dtype=dtype)
+            s0 = C.State.at_rest(c)
+            for projection in ("auto", True):
+                integ = C.ImplicitEuler(solver="cg", project_psd=projection)
+                f = jax.jit(lambda s, integ=integ: C.rollout(c, s, 1 / 30, STEPS, integ))
+                t = time_call(f, s0, repeats=1)
+                _, inf = f(s0)
+                row = {"stiffness": k, "dtype": np.dtype(dtype).name, "project_psd": projection,
+                       "ms_per_step": 1e3 * t["run_s"] / STEPS, "compile_s": t["compile_s"],
+                       "newton_mean": float(np.mean(inf.newton_iters)), "newton_max": int(np.max(inf.newton_iters)),
+                       "cg_per_step": float(np.mean(inf.cg_iters)), "converged_share": float(np.mean(inf.converged)),
+                       "stable": bool(np.all(inf.stable))}
+                rows.append(row)
+                print(f"k={k:.0e} {row['dtype']} project_psd={projection!s:5s}: Newton {row['newton_mean']:.1f} "
+                      f"(max {row['newton_max']}), CG {row['cg_per_step']:.0f}/step, converged "
+                      f"{100 * row['converged_share']:.0f}%, {row['ms_per_step']:.1f} ms/step", flush=True)
+    write("cloth_stiff", {"scene": f"C {N}x{N}, total mass 1, g 9.8, dt 1/30, {STEPS} steps from rest, CG", "rows": rows})
+
+
+if __name__ == "__main__":
+    main()
