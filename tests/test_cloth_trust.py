@@ -220,8 +220,6 @@ def test_auto_projection_falls_back_on_an_indefinite_hessian():
         integ = C.ImplicitEuler(solver=solver)
         s, info = C.step(c, s0, 1 / 60, integ)
         assert bool(info.stable) and np.all(np.isfinite(np.asarray(s.x)))
-        from jaxsim.cloth import _problem
-
         p = _problem.StepProblem.build(c, s0.x, s0.v, jnp.asarray(1 / 60))
         g0 = float(_problem.incremental_potential(jnp.zeros_like(x0), p))
         g1 = float(_problem.incremental_potential(s.x - s0.x, p))
