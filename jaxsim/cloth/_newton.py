@@ -90,52 +90,50 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
     projection = integ.project_psd  # True, False or "auto"
     f3 = free.repeat(3, axis=1).reshape(-1)
 
-    def dense_direction(b, A):
-        H = en.assemble(c, A) + jnp.diag(jnp.repeat(c.mass, 3) / h**2)
+    def dense_direction(b, H):
+        """Cholesky on ``H (3N, 3N)`` with pinned rows and columns replaced by the identity."""
         H = H * f3[:, None] * f3[None, :] + jnp.diag(1.0 - f3)
         dx = dense_solve(H, b.reshape(-1))
         res = _safe_ratio(jnp.linalg.norm(H @ dx - b.reshape(-1)), jnp.linalg.norm(b))
         return dx.reshape(N, 3), jnp.int32(0), res
 
-    def cg_direction(b, A, guess, Minv):
+    def assembled(A):
+        return en.assemble(c, A) + jnp.diag(jnp.repeat(c.mass, 3) / h**2)
+
+    def cg_direction(b, hvp, guess, Minv):
+        """PCG on ``v -> hvp(v)`` restricted to the free particles (identity on pins)."""
         def apply_H(v):
             v = v * free
-            f = jnp.einsum("sab,sb->sa", A, v[spr_j] - v[spr_i])
-            return (spring_sum(c, f) + m / h**2 * v) * free + (1.0 - free) * v
+            return hvp(v) * free + (1.0 - free) * v
 
         dx, k, res, broke = pcg(apply_H, b, guess * free, Minv, tol=integ.cg_tol, max_iters=integ.cg_max_iters)
         return dx, k, jnp.where(jnp.isfinite(res), res, jnp.inf), broke
 
+    def blocks_hvp(A):
+        return lambda v: spring_sum(c, jnp.einsum("sab,sb->sa", A, v[spr_j] - v[spr_i])) + m / h**2 * v
+
     def newton_direction(u, gvec, guess):
         b = -gvec
         if solver == "dense" and projection is False:
-            H = jax.hessian(objective)(u).reshape(3 * N, 3 * N)
-            H = H * f3[:, None] * f3[None, :] + jnp.diag(1.0 - f3)
-            dx = dense_solve(H, b.reshape(-1))
-            res = _safe_ratio(jnp.linalg.norm(H @ dx - b.reshape(-1)), jnp.linalg.norm(b))
-            return dx.reshape(N, 3), jnp.int32(0), res
+            return dense_direction(b, jax.hessian(objective)(u).reshape(3 * N, 3 * N))
         A_exact = pr.blocks(u, p, project_psd=False)
         A_psd = en.psd_projection(A_exact, p.d0 + p.spring_change(u))
         if solver == "dense":
             if projection is True:
-                return dense_direction(b, A_psd)
+                return dense_direction(b, assembled(A_psd))
             # "auto": the exact Hessian; Cholesky of an indefinite one gives non-finite values
-            dx, k, res = dense_direction(b, A_exact)
-            return lax.cond(jnp.all(jnp.isfinite(dx)), lambda: (dx, k, res), lambda: dense_direction(b, A_psd))
+            dx, k, res = dense_direction(b, assembled(A_exact))
+            return lax.cond(jnp.all(jnp.isfinite(dx)), lambda: (dx, k, res),
+                            lambda: dense_direction(b, assembled(A_psd)))
         Minv = block_jacobi(p, A_psd)  # an SPD preconditioner in every mode
         if projection is True:
-            return cg_direction(b, A_psd, guess, Minv)[:3]
+            return cg_direction(b, blocks_hvp(A_psd), guess, Minv)[:3]
         if projection is False:  # the exact Hessian, through the autodiff Hessian-vector product
-            def apply_H(v):
-                v = v * free
-                return jax.jvp(grad, (u,), (v,))[1] * free + (1.0 - free) * v
-
-            dx, k, res, _ = pcg(apply_H, b, guess * free, Minv, tol=integ.cg_tol, max_iters=integ.cg_max_iters)
-            return dx, k, jnp.where(jnp.isfinite(res), res, jnp.inf)
-        dx, k, res, broke = cg_direction(b, A_exact, guess, Minv)
+            return cg_direction(b, lambda v: jax.jvp(grad, (u,), (v,))[1], guess, Minv)[:3]
+        dx, k, res, broke = cg_direction(b, blocks_hvp(A_exact), guess, Minv)
 
         def projected():
-            dx2, k2, res2, _ = cg_direction(b, A_psd, guess, Minv)
+            dx2, k2, res2, _ = cg_direction(b, blocks_hvp(A_psd), guess, Minv)
             return dx2, k + k2, res2
 
         return lax.cond(broke, projected, lambda: (dx, k, res))

@@ -57,9 +57,13 @@ class StepProblem:
         """Derive the per-step terms (differentiable in every input)."""
         if not cloth.damped:
             cloth = dataclasses.replace(cloth, damping=jnp.zeros((), x0.dtype))
-        e0, d0 = en.spring_directions(cloth, x0)
+        d0 = x0[cloth.springs[:, 1]] - x0[cloth.springs[:, 0]]
         l0 = en._length(d0)
-        return StepProblem(cloth, x0, v0, h, d0, l0, l0 - cloth.rest_length, e0 if cloth.damped else None)
+        e0 = None
+        if cloth.damped:
+            ok = (l0 > 0)[:, None]
+            e0 = jnp.where(ok, d0 / jnp.where(ok, l0[:, None], 1.0), 0.0)  # as en.spring_directions
+        return StepProblem(cloth, x0, v0, h, d0, l0, l0 - cloth.rest_length, e0)
 
     @property
     def free(self) -> jax.Array:

@@ -84,9 +84,7 @@ def _implicit(cloth: Cloth, state: State, dt, integ: ImplicitEuler):
     p = pr.StepProblem.build(cloth, x0, v0, h)
     rtol = integ.resolved_rtol(x0.dtype)
     s = newton(jax.tree_util.tree_map(lax.stop_gradient, p), integ, rtol)
-    free = p.free > 0
-    u = solution(integ, jnp.where(free, s.u, 0.0), p)
-    u = jnp.where(free, u, 0.0)
+    u = jnp.where(p.free > 0, solution(integ, s.u, p), 0.0)  # Newton keeps u = 0 on pins
     x, v = x0 + u, u / h  # the velocity from the displacement, not from rounded positions
     ok = valid & ~s.fail & bounded(cloth, x, v)
     x, v = jnp.where(ok, x, x0), jnp.where(ok, v, v0)
