@@ -14,6 +14,8 @@ import numpy as np
 
 from . import _joints, _quat
 from ._chain import Chain, Pose
+from ._skeleton import Skeleton
+from ._tree_fk import skeleton_fk
 
 
 def fk_joints(offsets, local, batch_shape, *, unroll: bool):
@@ -53,7 +55,8 @@ def fk(chain: Chain, rotations: jax.Array | None = None, *, unroll: bool | None 
     """Forward kinematics.
 
     Args:
-      chain: the chain, with ``offsets (J, 3)``.
+      chain: a ``Chain`` with ``offsets (J, 3)``, or a ``Skeleton`` (the recursion with
+        "parent" read from ``parents``; ``unroll`` does not apply).
       rotations: ``(..., J, 4)`` local rotations as quaternions (w, x, y, z); ``None`` is
         the rest pose.  Any leading batch shape is allowed.  They are normalised first
         (``q / |q|``, and a zero quaternion is the identity), so bone lengths are kept
@@ -63,6 +66,8 @@ def fk(chain: Chain, rotations: jax.Array | None = None, *, unroll: bool | None 
     Returns:
       ``Pose`` with global ``positions (..., J, 3)`` and ``rotations (..., J, 4)``.
     """
+    if isinstance(chain, Skeleton):
+        return skeleton_fk(chain, rotations)
     if rotations is None:
         rotations = chain.rest_rotations()
     rotations = jnp.asarray(rotations, dtype=chain.offsets.dtype)

@@ -1,7 +1,7 @@
 """Implicit-function derivatives of a converged IK solution (no memory per sweep).
 
 A solution ``q*`` of the chain ``(offsets)`` for ``target`` is a stationary point of
-``f(q) = 1/2 |end(q) - target|^2``.  Perturb each local rotation on the right,
+``f(q) = 1/2 sum_k w_k |effector_k(q) - target_k|^2`` (one effector, the end, on a chain).  Perturb each local rotation on the right,
 ``q_i(w) = q*_i (1, w_i/2) / |.|`` (``w (J, 3)`` in radians), and differentiate the
 stationarity ``grad_w f(0; theta) = 0``:
 
@@ -20,12 +20,13 @@ the path the sweeps took.  First derivatives only.
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 
 from . import _quat
-from ._chain import Chain
-from ._fk import fk
+from ._tree_fk import fk_tree
 
 
 def _qmul(a, b):
@@ -39,41 +40,51 @@ def _perturbed(q, w):
     return _qmul(q, d)
 
 
-def _grad_w(w, q, offsets, target):
+def _effectors(topo, offsets, q):
+    """``(E, 3)`` effector positions of local rotations ``q (J, 4)``."""
+    P, _ = fk_tree(topo.parents, offsets, [_quat.unstack(q[i]) for i in range(q.shape[0])])
+    return jnp.stack([_quat.stack(P[e]) for e in topo.effectors])
+
+
+def _grad_w(topo, w, q, offsets, targets, weights):
     def f(w):
-        end = fk(Chain(offsets), _perturbed(q, w), unroll=False).positions[-1]
-        return 0.5 * jnp.sum((end - target) ** 2)
+        r = _effectors(topo, offsets, _perturbed(q, w)) - targets
+        return 0.5 * jnp.sum(weights[:, None] * r * r)
 
     return jax.grad(f)(w)
 
 
-def _hessian(q, offsets, target, reachable):
+def _hessian(topo, q, offsets, targets, weights, gauss_newton):
     J = q.shape[0]
     w0 = jnp.zeros((J, 3), q.dtype)
-    end_of = lambda w: fk(Chain(offsets), _perturbed(q, w), unroll=False).positions[-1]  # noqa: E731
-    Jac = jax.jacfwd(end_of)(w0).reshape(3, 3 * J)
-    gn = Jac.T @ Jac
-    full = jax.jacfwd(_grad_w)(w0, q, offsets, target).reshape(3 * J, 3 * J)
-    H = jnp.where(reachable, gn, 0.5 * (full + full.T))
-    return H
+    Jac = jax.jacfwd(lambda w: _effectors(topo, offsets, _perturbed(q, w)))(w0).reshape(-1, 3 * J)
+    gn = Jac.T @ (jnp.repeat(weights, 3)[:, None] * Jac)
+    full = jax.jacfwd(functools.partial(_grad_w, topo))(w0, q, offsets, targets, weights).reshape(3 * J, 3 * J)
+    return jnp.where(gauss_newton, gn, 0.5 * (full + full.T))
 
 
-@jax.custom_jvp
-def implicit_rotations(q, offsets, target, reachable):
-    """Identity on a converged ``q (J, 4)``, with implicit-function derivatives."""
+@functools.partial(jax.custom_jvp, nondiff_argnums=(0,))
+def implicit_rotations(topo, q, offsets, targets, weights, gauss_newton):
+    """Identity on a converged ``q (J, 4)``, with implicit-function derivatives.
+
+    Args:
+      topo: static ``Topology`` (a chain: parents ``(-1, 0, ...)``, effector ``J-1``).
+      q: ``(J, 4)``; offsets: ``(J, 3)``; targets: ``(E, 3)``; weights: ``(E,)``.
+      gauss_newton: bool, use ``J^T W J`` (targets met) rather than the full Hessian.
+    """
     return q
 
 
 @implicit_rotations.defjvp
-def _implicit_rotations_jvp(primals, tangents):
-    q, offsets, target, reachable = primals
-    _, off_dot, tgt_dot, _ = tangents
+def _implicit_rotations_jvp(topo, primals, tangents):
+    q, offsets, targets, weights, gauss_newton = primals
+    _, off_dot, tgt_dot, _, _ = tangents
     J = q.shape[0]
     w0 = jnp.zeros((J, 3), q.dtype)
-    H = _hessian(q, offsets, target, reachable)
+    H = _hessian(topo, q, offsets, targets, weights, gauss_newton)
     rtol = jnp.sqrt(jnp.finfo(q.dtype).eps)
     Hp = jnp.linalg.pinv(H, rtol=rtol)
-    rhs = jax.jvp(lambda o, t: _grad_w(w0, q, o, t), (offsets, target), (off_dot, tgt_dot))[1]
+    rhs = jax.jvp(lambda o, t: _grad_w(topo, w0, q, o, t, weights), (offsets, targets), (off_dot, tgt_dot))[1]
     dw = -(Hp @ rhs.reshape(-1)).reshape(J, 3)
     dq = _qmul(q, jnp.concatenate([jnp.zeros_like(dw[:, :1]), 0.5 * dw], axis=-1))
     return q, dq

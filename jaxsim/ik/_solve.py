@@ -27,7 +27,9 @@ from ._chain import Chain
 from ._fabrik import fabrik_sweep, fabrik_sweep_lean, rotations_from_positions, straight_towards
 from ._fk import fk, fk_joints
 from ._implicit import implicit_rotations
+from ._loop import masked_sweeps
 from ._result import IKResult
+from ._skeleton import Skeleton, topology
 from ._symmetry import break_symmetry, break_symmetry_lists
 
 SOLVERS = ("ccd", "fabrik")
@@ -42,8 +44,9 @@ def _run(offsets, target, local0, tol, *, kind, max_iters, unroll, trace, early_
     Rolled (single targets, long chains): stacked ``(J, C, *B)`` arrays in a
     ``fori_loop`` over joints.
 
-    Returns stacked ``local (J, 4, *B)``, ``positions (J, 3, *B)``, and ``(*B)`` error,
-    iterations, converged, reachable, plus the ``(max_iters, *B)`` trace or ``None``.
+    Returns an ``IKResult`` in the component-first layout: ``rotations (J, 4, *B)``,
+    ``positions (J, 3, *B)``, ``(*B)`` error, iterations, converged and reachable, and
+    the ``(max_iters, *B)`` trace or ``None``.
     """
     J = local0.shape[0]
     B = target.shape[1:]
@@ -79,7 +82,6 @@ def _run(offsets, target, local0, tol, *, kind, max_iters, unroll, trace, early_
     def batched(v):  # a loop carry needs the full batch shape
         return tuple(jnp.broadcast_to(c, B) for c in v)
 
-    tol2 = tol * tol
     iters0 = jnp.zeros(B, jnp.int32)
     if kind == "ccd" and unroll:
         state0 = [batched(g) for g in G0]
@@ -115,38 +117,8 @@ def _run(offsets, target, local0, tol, *, kind, max_iters, unroll, trace, early_
                 new = fabrik_sweep(state, tgt, root, lengths, fallback, unroll=False)
                 return new, _quat.sqnorm(_quat.sub(_joints.get(new, J - 1), tgt))
 
-    def body(carry, _):
-        state, err, iters, done = carry
-        new, e2 = sweep(state)
-        state = _quat.where(done, state, new)
-        iters = iters + (~done).astype(jnp.int32)
-        if trace:  # the error is carried only when a per-sweep trace is asked for
-            err = jnp.where(done, err, _quat.safe_sqrt(e2))
-        done = done | (e2 <= tol2)
-        return (state, err, iters, done), (err if trace else None)
-
-    carry0 = (state0, jnp.broadcast_to(err0, B) if trace else None, iters0, jnp.broadcast_to(done0, B))
-    if not early_exit:
-        (state, _, iters, _), errs = lax.scan(body, carry0, None, length=max_iters)
-    else:
-        # Stop the whole batch once every element is done (forward-mode only).
-        buf0 = jnp.zeros((max_iters,) + B, dtype) if trace else None
-
-        def w_body(c):
-            k, carry, buf = c
-            carry, e = body(carry, None)
-            if trace:
-                buf = lax.dynamic_update_index_in_dim(buf, e, k, 0)
-            return k + 1, carry, buf
-
-        def w_cond(c):
-            return (c[0] < max_iters) & ~jnp.all(c[1][3])
-
-        k, (state, err_last, iters, _), buf = lax.while_loop(w_cond, w_body, (0, carry0, buf0))
-        errs = None
-        if trace:
-            rows = jnp.arange(max_iters).reshape((max_iters,) + (1,) * len(B))
-            errs = jnp.where(rows < k, buf, err_last)
+    state, iters, errs = masked_sweeps(sweep, state0, err0, iters0, jnp.broadcast_to(done0, B), tol,
+                                       max_iters=max_iters, trace=trace, early_exit=early_exit)
 
     if kind == "ccd" and unroll:
         local = [batched(q) for q in locals_from_frames(state)]
@@ -159,7 +131,8 @@ def _run(offsets, target, local0, tol, *, kind, max_iters, unroll, trace, early_
             local = [batched(q) for q in local]
     P, _ = fk_joints(offsets, local, B, unroll=unroll)
     err = _quat.safe_norm(_quat.sub(_joints.get(P, J - 1), tgt))
-    return _joints.stack(local).astype(dtype), _joints.stack(P), err, iters, err <= tol, reachable, errs
+    return IKResult(rotations=_joints.stack(local).astype(dtype), positions=_joints.stack(P), error=err,
+                    iterations=iters, converged=err <= tol, reachable=reachable, trace=errs)
 
 
 def _check_target_and_rotations(chain, target, rotations):
@@ -180,8 +153,8 @@ def check_settings(chain, solver, max_iters, tol):
     """Boundary checks shared by every IK entry point (raise before tracing)."""
     if solver not in SOLVERS:
         raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
-    if not isinstance(chain, Chain):
-        raise TypeError(f"chain must be a jaxsim.ik.Chain, got {type(chain).__name__}")
+    if not isinstance(chain, (Chain, Skeleton)):
+        raise TypeError(f"chain must be a jaxsim.ik.Chain or Skeleton, got {type(chain).__name__}")
     check_int("max_iters", max_iters, 1)
     check_tol("tol", tol)
 
@@ -218,7 +191,7 @@ def _solve(kind, chain, target, rotations, *, max_iters, tol, trace, unroll, ear
         rotations = full_rotations
     if implicit_diff:  # the sweeps are not differentiated; see _implicit
         offsets, target, rotations = (lax.stop_gradient(a) for a in (offsets, target, rotations))
-    local, P, err, iters, conv, reachable, errs = _run(
+    res = _run(
         offsets,
         jnp.moveaxis(target, -1, 0),
         jnp.moveaxis(rotations, (-2, -1), (0, 1)),  # (J, 4) when shared, else (J, 4, *B)
@@ -229,14 +202,17 @@ def _solve(kind, chain, target, rotations, *, max_iters, tol, trace, unroll, ear
         trace=bool(trace),
         early_exit=bool(early_exit),
     )
-    local, P = jnp.moveaxis(local, (0, 1), (-2, -1)), jnp.moveaxis(P, (0, 1), (-2, -1))
+    local, P = jnp.moveaxis(res.rotations, (0, 1), (-2, -1)), jnp.moveaxis(res.positions, (0, 1), (-2, -1))
+    err, iters, conv, reachable, errs = res.error, res.iterations, res.converged, res.reachable, res.trace
     if implicit_diff:
-        ift = implicit_rotations
+        topo = topology((-1,) + tuple(range(J - 1)), (J - 1,))
+        ift = functools.partial(implicit_rotations, topo)
         for _ in batch:
-            ift = jax.vmap(ift, in_axes=(0, None, 0, 0))
-        local = ift(local, chain.offsets, jnp.broadcast_to(jnp.asarray(target_in, dtype), batch + (3,)), reachable)
+            ift = jax.vmap(ift, in_axes=(0, None, 0, None, 0))
+        tgt = jnp.broadcast_to(jnp.asarray(target_in, dtype), batch + (3,))
+        local = ift(local, chain.offsets, tgt[..., None, :], jnp.ones((1,), dtype), reachable)
         P = fk(chain, local).positions
-        err = jnp.sqrt(jnp.sum((P[..., -1, :] - jnp.asarray(target_in, dtype)) ** 2, axis=-1))
+        err = jnp.sqrt(jnp.sum((P[..., -1, :] - tgt) ** 2, axis=-1))
     return IKResult(
         rotations=local,
         positions=P,
@@ -247,62 +223,3 @@ def _solve(kind, chain, target, rotations, *, max_iters, tol, trace, unroll, ear
         trace=None if errs is None else jnp.moveaxis(errs, 0, -1),
     )
 
-
-def ccd(chain: Chain, target, rotations=None, *, max_iters: int = 100, tol=1e-4,
-        trace: bool = True, unroll: bool | None = None, implicit_diff: bool = False) -> IKResult:
-    """Cyclic coordinate descent IK.
-
-    Args:
-      chain: the chain, ``offsets (J, 3)``.
-      target: ``(3,)`` world target, or ``(..., 3)`` for a batch.
-      rotations: ``(J, 4)`` (or ``(..., J, 4)``) local start rotations; ``None`` = rest pose.
-      max_iters: number of sweeps scanned (static; a new value recompiles).
-      tol: stop when ``|end - target| <= tol`` (scene units).
-      trace: also return the per-sweep error ``trace (..., max_iters)``.
-      unroll: unroll the loop over joints (default: ``J <= 16`` and a batch of >= 256).
-      implicit_diff: differentiate the returned solution by the implicit function
-        theorem at the solution (``jaxsim.ik._implicit``) instead of through the
-        unrolled sweeps: no memory per sweep, least-change rotations derivative.
-
-    Returns:
-      ``IKResult``.  Sweeps after convergence are masked no-ops.  By default ``jax.grad``
-      and ``jax.jvp`` differentiate through every sweep of the scan (with respect to the
-      target, ``chain.offsets`` and the start rotations).
-    """
-    return _solve("ccd", chain, target, rotations, max_iters=max_iters, tol=tol, trace=trace, unroll=unroll,
-                  implicit_diff=implicit_diff)
-
-
-def fabrik(chain: Chain, target, rotations=None, *, max_iters: int = 100, tol=1e-4,
-           trace: bool = True, unroll: bool | None = None, implicit_diff: bool = False) -> IKResult:
-    """FABRIK IK (Aristidou & Lasenby 2011), with rotations rebuilt from the positions.
-
-    Arguments and result as for :func:`ccd`.  An unreachable target gets the straight
-    chain towards it after one sweep, with ``converged=False``.
-    """
-    return _solve("fabrik", chain, target, rotations, max_iters=max_iters, tol=tol, trace=trace, unroll=unroll,
-                  implicit_diff=implicit_diff)
-
-
-def solve(chain: Chain, targets, *, solver: str = "fabrik", rotations=None, max_iters: int = 100,
-          tol=1e-4, trace: bool = False, unroll: bool | None = None, early_exit: bool = False,
-          implicit_diff: bool = False, sharded: bool | None = None) -> IKResult:
-    """Batched IK over any leading shape of ``targets (..., 3)``.
-
-    ``rotations`` may be ``(J, 4)`` (shared start pose) or ``(..., J, 4)``.  The batch
-    trails in memory inside the kernel, so a large batch is one elementwise loop per
-    joint update.  Per-sweep traces are off by default to save memory.
-
-    ``early_exit=True`` runs the sweeps in a ``lax.while_loop`` that stops as soon as
-    every element of the batch is done, instead of the fixed-length scan.  Results are
-    identical; it is much faster when ``tol > 0`` and most targets converge well before
-    ``max_iters``, but it supports forward-mode differentiation only (``jax.grad``
-    needs the default scan, or ``implicit_diff=True``, which never differentiates the
-    sweeps and so combines with ``early_exit``).
-
-    ``sharded=None`` splits the batch across all local devices when there are several
-    (``jax.sharding.NamedSharding`` over a 1-D mesh; see ``jaxsim._sharding``); on one
-    device it does nothing.  ``True`` insists, ``False`` keeps the batch on one device.
-    """
-    return _solve(solver, chain, targets, rotations, max_iters=max_iters, tol=tol, trace=trace,
-                  unroll=unroll, early_exit=early_exit, implicit_diff=implicit_diff, sharded=sharded)

@@ -72,3 +72,54 @@ def break_symmetry_lists(local, positions, frames, target, reach, done):
     for k in range(m, J):
         frames[k] = _quat.where(need, _quat.mul(r, frames[k]), frames[k])
     return local, positions, frames
+
+
+def branch_segments(topo):
+    """Per effector slot, the joints of its branch: from the nearest sub-base (a joint with
+    several active children), effector or root above it, down to the effector."""
+    out = []
+    for k, path in enumerate(topo.path):
+        start = 0
+        for idx, j in enumerate(path[:-1]):
+            if len(topo.active_children[j]) > 1 or topo.effector_slot[j] >= 0:
+                start = idx
+        out.append(path[start:])
+    return out
+
+
+def break_symmetry_tree(topo, offsets, local, positions, frames, targets, tol):
+    """Bend the straight branches of a tree that lie on the line of their target.
+
+    Where the lower part of an effector's branch (see :func:`branch_segments`), from
+    some joint ``b`` down to the effector, lies on the line from ``b`` to the effector's
+    target, and the effector is not yet within ``tol``, the joint just below the
+    highest such ``b`` is turned by ``SYMMETRY_BREAK_ANGLE`` about an axis perpendicular
+    to the line (as :func:`break_symmetry` does for chains).  Returns the new list of
+    local rotations; the caller redoes FK.
+    """
+    half = 0.5 * SYMMETRY_BREAK_ANGLE
+
+    def parallel(u, v):
+        return _quat.safe_norm(_quat.cross(u, v)) <= 1e-6 * _quat.safe_norm(u) * _quat.safe_norm(v)
+
+    local = list(local)
+    for k, seg in enumerate(branch_segments(topo)):
+        bones = [_quat.sub(positions[seg[j + 1]], positions[seg[j]]) for j in range(len(seg) - 1)]
+        # straight_below[i]: the bones from seg[i] down to the effector are all parallel
+        straight_below = [None] * len(bones)
+        straight_below[-1] = True
+        for i in range(len(bones) - 2, -1, -1):
+            straight_below[i] = straight_below[i + 1] & parallel(bones[i], bones[i + 1])
+        taken = _quat.safe_norm(_quat.sub(positions[seg[-1]], targets[k])) <= tol
+        for i in range(max(len(seg) - 2, 1)):
+            to_target = _quat.sub(targets[k], positions[seg[i]])
+            pick = straight_below[i] & parallel(bones[i], to_target) & ~taken
+            taken = taken | pick
+            m = seg[i + 1] if len(seg) - i > 2 else seg[i]
+            axis = _quat.perpendicular(bones[i])
+            r = (jnp.full_like(axis[0], np.cos(half)), *_quat.scale(float(np.sin(half)), axis))
+            gp = frames[topo.parents[m]] if m > 0 else None
+            turned = _quat.mul(r, local[m] if gp is None else _quat.mul(gp, local[m]))
+            lm = turned if gp is None else _quat.mul(_quat.conj(gp), turned)
+            local[m] = _quat.where(pick, lm, local[m])
+    return local

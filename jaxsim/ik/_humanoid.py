@@ -1,0 +1,78 @@
+"""A built-in humanoid skeleton of 24 joints, in metres, y up, facing +z.
+
+Proportions are those of an adult about 1.75 m tall.  The rest pose is a T-pose: arms
+straight out along ±x, legs straight down, feet pointing forward (+z).  ``l_`` is the
+character's left side, at +x.
+
+==  ============  ========  ====================  ========================
+id  name          parent    offset (m)            at rest (world, m)
+==  ============  ========  ====================  ========================
+0   pelvis        (root)    (0, 1.00, 0)          (0, 1.00, 0)
+1   spine1        pelvis    (0, 0.10, 0)          (0, 1.10, 0)
+2   spine2        spine1    (0, 0.12, 0)          (0, 1.22, 0)
+3   spine3        spine2    (0, 0.12, 0)          (0, 1.34, 0)
+4   neck          spine3    (0, 0.14, 0)          (0, 1.48, 0)
+5   head          neck      (0, 0.12, 0)          (0, 1.60, 0)
+6   l_clavicle    spine3    (0.03, 0.08, 0)       (0.03, 1.42, 0)
+7   l_shoulder    l_clav.   (0.15, 0.02, 0)       (0.18, 1.44, 0)
+8   l_elbow       l_should. (0.28, 0, 0)          (0.46, 1.44, 0)
+9   l_wrist       l_elbow   (0.26, 0, 0)          (0.72, 1.44, 0)
+10  l_hand        l_wrist   (0.08, 0, 0)          (0.80, 1.44, 0)
+11  r_clavicle    spine3    (-0.03, 0.08, 0)      mirror of 6
+12  r_shoulder    r_clav.   (-0.15, 0.02, 0)      mirror of 7
+13  r_elbow       r_should. (-0.28, 0, 0)         mirror of 8
+14  r_wrist       r_elbow   (-0.26, 0, 0)         mirror of 9
+15  r_hand        r_wrist   (-0.08, 0, 0)         mirror of 10
+16  l_hip         pelvis    (0.09, -0.06, 0)      (0.09, 0.94, 0)
+17  l_knee        l_hip     (0, -0.43, 0)         (0.09, 0.51, 0)
+18  l_ankle       l_knee    (0, -0.42, 0)         (0.09, 0.09, 0)
+19  l_toe         l_ankle   (0, -0.07, 0.13)      (0.09, 0.02, 0.13)
+20  r_hip         pelvis    (-0.09, -0.06, 0)     mirror of 16
+21  r_knee        r_hip     (0, -0.43, 0)         mirror of 17
+22  r_ankle       r_knee    (0, -0.42, 0)         mirror of 18
+23  r_toe         r_ankle   (0, -0.07, 0.13)      mirror of 19
+==  ============  ========  ====================  ========================
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._skeleton import Skeleton
+
+_SPINE = [("pelvis", -1, (0.0, 1.0, 0.0)), ("spine1", 0, (0.0, 0.10, 0.0)), ("spine2", 1, (0.0, 0.12, 0.0)),
+          ("spine3", 2, (0.0, 0.12, 0.0)), ("neck", 3, (0.0, 0.14, 0.0)), ("head", 4, (0.0, 0.12, 0.0))]
+_ARM = [("clavicle", (0.03, 0.08, 0.0)), ("shoulder", (0.15, 0.02, 0.0)), ("elbow", (0.28, 0.0, 0.0)),
+        ("wrist", (0.26, 0.0, 0.0)), ("hand", (0.08, 0.0, 0.0))]
+_LEG = [("hip", (0.09, -0.06, 0.0)), ("knee", (0.0, -0.43, 0.0)), ("ankle", (0.0, -0.42, 0.0)),
+        ("toe", (0.0, -0.07, 0.13))]
+
+#: Hands and ankles, the usual effectors of a full-body solve.
+HUMANOID_EFFECTORS = ("l_hand", "r_hand", "l_ankle", "r_ankle")
+
+
+def _rows():
+    rows = list(_SPINE)
+    for part, attach in ((_ARM, 3), (_LEG, 0)):
+        for side, sx in (("l", 1.0), ("r", -1.0)):
+            parent = attach
+            for name, (x, y, z) in part:
+                rows.append((f"{side}_{name}", parent, (sx * x, y, z)))
+                parent = len(rows) - 1
+    return rows
+
+
+def humanoid(dtype=None) -> Skeleton:
+    """The built-in 24-joint humanoid (see the module docstring for names and rest pose).
+
+    Args:
+      dtype: float32 or float64; default: float64 under ``jax_enable_x64``, else float32.
+
+    Returns:
+      ``Skeleton`` with ``names``; ``HUMANOID_EFFECTORS`` lists hands and ankles.
+    """
+    rows = _rows()
+    offsets = np.array([r[2] for r in rows])
+    if dtype is not None:
+        offsets = offsets.astype(dtype)
+    return Skeleton(parents=tuple(r[1] for r in rows), offsets=offsets, names=tuple(r[0] for r in rows))

@@ -1,0 +1,66 @@
+"""IK solver settings: small frozen, hashable objects, like ``cloth.ImplicitEuler``."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import ClassVar
+
+from .._validate import check_int, check_tol
+
+#: ``max_iters`` and ``tol`` when neither the call nor a settings object gives them.
+DEFAULT_MAX_ITERS = 100
+DEFAULT_TOL = 1e-4
+
+
+@dataclasses.dataclass(frozen=True)
+class _Settings:
+    max_iters: int = DEFAULT_MAX_ITERS
+    tol: float = DEFAULT_TOL
+    kind: ClassVar[str] = ""
+
+    def __post_init__(self):
+        object.__setattr__(self, "max_iters", check_int("max_iters", self.max_iters, 1))
+        check_tol("tol", self.tol)
+        object.__setattr__(self, "tol", float(self.tol))
+
+
+@dataclasses.dataclass(frozen=True)
+class FABRIK(_Settings):
+    """FABRIK settings (Aristidou & Lasenby 2011; §4.2 on trees).
+
+    Attributes:
+      max_iters: sweeps scanned (static; a new value recompiles).
+      tol: converged when every effector is within ``tol`` of its target (scene units).
+    """
+
+    kind: ClassVar[str] = "fabrik"
+
+
+@dataclasses.dataclass(frozen=True)
+class CCD(_Settings):
+    """Cyclic coordinate descent settings; on trees each joint takes Horn's (1987) best rotation.
+
+    Attributes:
+      max_iters: sweeps scanned (static; a new value recompiles).
+      tol: converged when every effector is within ``tol`` of its target (scene units).
+    """
+
+    kind: ClassVar[str] = "ccd"
+
+
+_BY_NAME = {"fabrik": FABRIK, "ccd": CCD}
+
+
+def resolve(solver, max_iters, tol):
+    """``(kind, max_iters, tol)`` from a settings object or a name plus keywords.
+
+    With a settings object, ``max_iters`` and ``tol`` must be left out (``None``).
+    """
+    if isinstance(solver, _Settings):
+        if max_iters is not None or tol is not None:
+            raise ValueError(f"give max_iters and tol in the settings object ({solver!r}), not beside it")
+        return solver.kind, solver.max_iters, solver.tol
+    if not isinstance(solver, str) or solver not in _BY_NAME:
+        raise ValueError(f"solver must be one of {tuple(_BY_NAME)} or a jaxsim.ik.FABRIK / CCD object, got {solver!r}")
+    s = _BY_NAME[solver](DEFAULT_MAX_ITERS if max_iters is None else max_iters, DEFAULT_TOL if tol is None else tol)
+    return s.kind, s.max_iters, s.tol
