@@ -24,6 +24,9 @@ def test_demo_fast_writes_summary(tmp_path):
         assert png.format == "PNG" and gif.format == "GIF" and gif.n_frames >= 7, stem
         assert f"{stem}.gif" in text
     assert Image.open(out / "cloth.gif").n_frames == 7  # 61 states, every 10th in --fast
+    assert Image.open(out / "humanoid.gif").n_frames == 15 and "| 150 |" in text.split("humanoid")[1]
+    row = text.split("## IK: the humanoid")[1].splitlines()[4]
+    assert row.split("|")[4].strip() == "True", row  # every frame within tol, feet planted
     # every file the run wrote is listed as its own: a second run may overwrite them
     from jaxsim._cli import _out
 

@@ -143,3 +143,23 @@ def test_plots_and_animations_write_real_images(tmp_path, digit):
 def test_import_jaxsim_does_not_import_matplotlib():
     code = "import sys, jaxsim, jaxsim.curves; assert 'matplotlib' not in sys.modules, 'matplotlib imported'"
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_plot_and_animate_skeleton(tmp_path):
+    from jaxsim import viz
+
+    H = ik.humanoid()
+    eff = [H.index(n) for n in ik.HUMANOID_EFFECTORS]
+    P = np.asarray(ik.fk(H).positions)
+    for views in (("front", "side"), "3d", ("side",)):
+        fig = viz.plot_skeleton(H, P, effectors=eff, targets=P[eff] + 0.1, trails=np.stack([P[eff]] * 3), views=views)
+        assert len(fig.axes) == (1 if views == "3d" else len(views))
+    frames = np.stack([P, P + [0.0, 0.1, 0.0], P + [0.0, 0.2, 0.0]])
+    n = viz.animate_skeleton(H, frames, str(tmp_path / "h.gif"), effectors=eff, targets=frames[:, eff])
+    assert n == 3 and Image.open(tmp_path / "h.gif").n_frames == 3
+    with pytest.raises(ValueError, match="views"):
+        viz.plot_skeleton(H, P, views=("top",))
+    with pytest.raises(ValueError, match="positions"):
+        viz.animate_skeleton(H, P, str(tmp_path / "x.gif"))
+    with pytest.raises(ValueError, match="targets"):
+        viz.animate_skeleton(H, frames, str(tmp_path / "x.gif"), effectors=eff, targets=frames[:, :2])

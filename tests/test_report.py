@@ -6,9 +6,9 @@ import sys
 
 from PIL import Image
 
-FIGURES = ["ik_error_vs_iterations.png", "ik_error_vs_time.png", "ik_iterations_hist.png", "ik_jitter.png",
+FIGURES = ["ik_humanoid.png", "ik_error_vs_iterations.png", "ik_error_vs_time.png", "ik_iterations_hist.png", "ik_jitter.png",
            "cloth_pareto.png", "cloth_stability_map.png", "cloth_cost_growth.png"]
-SECTIONS = ["IK 1.", "IK 2.", "IK 3.", "IK 4.", "Cloth 1.", "Cloth 2.", "Cloth 3.", "Cloth 4."]
+SECTIONS = ["IK 1.", "IK 2.", "IK 3.", "IK 4.", "IK 5.", "Cloth 1.", "Cloth 2.", "Cloth 3.", "Cloth 4."]
 
 
 def test_quick_report(tmp_path):
@@ -21,6 +21,7 @@ def test_quick_report(tmp_path):
     check_tables_and_figures(report)
     check_fabrik_fewer_iterations_than_ccd_on_lab_circle(report)
     check_implicit_stable_where_explicit_is_not(report)
+    check_humanoid_fabrik_ahead_of_ccd(report)
     # every file the run wrote is listed as its own: a second run may overwrite them
     from jaxsim._cli import _out
 
@@ -65,3 +66,9 @@ def check_implicit_stable_where_explicit_is_not(report):
     (_, ex_unstable), (_, im_unstable) = counts["explicit Euler (1 substep)"], counts["implicit Euler (Newton + line search)"]
     assert ex_unstable > 0 and im_unstable == 0
     assert "k = 1e4, dt = 1/30: explicit unstable, implicit stable" in text
+
+
+def check_humanoid_fabrik_ahead_of_ccd(report):
+    _, text, _ = report
+    rows = {r[0]: r for r in tables_after(text, "## IK 5.")[1:]}
+    assert float(rows["fabrik"][1]) >= 90.0 and float(rows["fabrik"][1]) > float(rows["ccd"][1]), rows

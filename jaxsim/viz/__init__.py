@@ -9,6 +9,7 @@ from ._cloth import animate_cloth, plot_cloth
 from ._common import new_figure, render_text, save
 from ._ik import animate_tracking, plot_chain, plot_tracking
 from ._plots import plot_error_vs_time
+from ._skeleton import animate_skeleton, plot_skeleton
 
-__all__ = ["plot_chain", "plot_tracking", "animate_tracking", "plot_cloth", "animate_cloth",
+__all__ = ["plot_chain", "plot_tracking", "animate_tracking", "plot_skeleton", "animate_skeleton", "plot_cloth", "animate_cloth",
            "plot_error_vs_time", "render_text", "new_figure", "save"]
