@@ -143,6 +143,11 @@ def _check_target_and_rotations(chain, target, rotations):
         raise ValueError(f"rotations must have shape (..., {J}, 4) for this chain, got {rotations.shape}")
     if is_concrete(target):
         check_finite("target", target)
+    check_start_rotations(rotations)
+
+
+def check_start_rotations(rotations):
+    """Start rotations must be finite and non-zero (checked when concrete, i.e. outside ``jit``)."""
     if is_concrete(rotations):
         r = check_finite("rotations", rotations)
         if np.any(np.linalg.norm(r, axis=-1) < 1e-6):

@@ -22,6 +22,7 @@ from ._loop import masked_sweeps
 from ._result import IKResult
 from ._symmetry import break_symmetry_tree
 from ._skeleton import Skeleton, check_effectors, topology
+from ._solve import check_start_rotations
 from ._tree_fk import fk_tree, skeleton_fk
 from ._tree_sweeps import branch_weights, ccd_tree_rotations, ccd_tree_sweep, fabrik_tree_rotations, fabrik_tree_sweep
 
@@ -121,10 +122,7 @@ def check_tree_inputs(skeleton: Skeleton, targets, rotations, effectors, weights
         raise ValueError(f"rotations must have shape (..., {J}, 4) for this skeleton, got {rotations.shape}")
     if is_concrete(targets):
         check_finite("targets", targets)
-    if is_concrete(rotations):
-        r = check_finite("rotations", rotations)
-        if np.any(np.linalg.norm(r, axis=-1) < 1e-6):
-            raise ValueError("rotations contain a zero quaternion; use (1, 0, 0, 0) for no rotation")
+    check_start_rotations(rotations)
     if weights is None:
         weights = jnp.ones((E,), dtype)
     else:
