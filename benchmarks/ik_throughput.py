@@ -68,7 +68,7 @@ def humanoid_case(record, n_sets=10_000):
     """
     rng = np.random.default_rng(1)
     out = {}
-    H32 = ik.humanoid(np.float32)
+    H32 = ik.humanoid(np.float32, limits=False)
     eff = tuple(H32.index(k) for k in ik.HUMANOID_EFFECTORS)
     T = jnp.asarray(np.asarray(ik.fk(H32, random_poses(rng, (n_sets, H32.num_joints))).positions)[:, eff], jnp.float32)
     for solver in ("fabrik", "ccd"):
@@ -84,7 +84,7 @@ def humanoid_case(record, n_sets=10_000):
                                                                             "mean_iterations", "converged_fraction")}
     was = jax.config.jax_enable_x64
     jax.config.update("jax_enable_x64", True)
-    H64 = ik.humanoid(np.float64)
+    H64 = ik.humanoid(np.float64, limits=False)
     R = random_poses(np.random.default_rng(4), (500, H64.num_joints))
     T64 = np.asarray(ik.fk(H64, R).positions)[:, eff]
     for solver in ("fabrik", "ccd"):

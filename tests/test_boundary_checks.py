@@ -59,7 +59,7 @@ def test_track_under_jit_survives_a_nan_frame():
     (dict(tol=-1.0), "tol must be >= 0"),
     (dict(tol=np.inf), "tol must be finite"),
     (dict(trace="no"), "trace must be True or False"),
-    (dict(solver="lm"), "solver must be one of"),
+    (dict(solver="newton"), "solver must be one of"),
 ])
 def test_bad_solver_settings(kw, match):
     raises(match, ik.solve, ARM, TARGETS, **kw)

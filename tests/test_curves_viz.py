@@ -148,7 +148,7 @@ def test_import_jaxsim_does_not_import_matplotlib():
 def test_plot_and_animate_skeleton(tmp_path):
     from jaxsim import viz
 
-    H = ik.humanoid()
+    H = ik.humanoid(limits=False)
     eff = [H.index(n) for n in ik.HUMANOID_EFFECTORS]
     P = np.asarray(ik.fk(H).positions)
     for views in (("front", "side"), "3d", ("side",)):

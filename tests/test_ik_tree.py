@@ -75,7 +75,7 @@ def test_skeleton_names_and_effector_checks():
         ik.Skeleton(parents=(-1, 0), offsets=np.ones((2, 3)), names=("a",))
     with pytest.raises(ValueError, match="distinct"):
         ik.Skeleton(parents=(-1, 0), offsets=np.ones((2, 3)), names=("a", "a"))
-    H = ik.humanoid()
+    H = ik.humanoid(limits=False)
     assert H.num_joints == 24 and H.index("l_hand") == 10 and H.parents[H.index("r_knee")] == H.index("r_hip")
     t = np.zeros((1, 3))
     for eff, match in (((24,), "out of range"), (("nose",), "no joint"), ((3, 3), "distinct"), ((), "at least")):
@@ -90,7 +90,7 @@ def test_skeleton_names_and_effector_checks():
 
 
 def test_humanoid_rest_pose_and_proportions():
-    H = ik.humanoid()
+    H = ik.humanoid(limits=False)
     P = np.asarray(ik.fk(H).positions)
     assert P[H.index("head")][1] == pytest.approx(1.60)
     assert P[H.index("l_hand")][0] == pytest.approx(0.80) and P[H.index("r_hand")][0] == pytest.approx(-0.80)
@@ -100,7 +100,7 @@ def test_humanoid_rest_pose_and_proportions():
 
 def test_tree_fk_matches_numpy_recursion():
     rng = np.random.default_rng(0)
-    H = ik.humanoid()
+    H = ik.humanoid(limits=False)
     R = random_rotations(rng, (3, H.num_joints))
     P = np.asarray(ik.fk(H, R).positions)
     for b in range(3):
@@ -132,7 +132,8 @@ def test_tree_sweeps_reduce_to_chain_sweeps(kind):
     rng = np.random.default_rng(2)
     t = np.asarray(ik.fk(chain, random_rotations(rng, (64, 5), 1.5)).positions)[:, -1]
     a = ik.solve(chain, t, solver=kind, tol=1e-6, max_iters=60)
-    b = solve_tree(kind, sk, t[:, None], None, effectors=(4,), weights=None, max_iters=60, tol=1e-6, trace=False)
+    b = solve_tree(ik.FABRIK(60, 1e-6) if kind == "fabrik" else ik.CCD(60, 1e-6), sk, t[:, None], None,
+                   effectors=(4,), weights=None, trace=False)
     np.testing.assert_allclose(b.positions, a.positions, atol=1e-9)
     np.testing.assert_allclose(b.rotations, a.rotations, atol=1e-9)
     np.testing.assert_array_equal(b.iterations, a.iterations)
@@ -163,7 +164,7 @@ def test_horn_recovers_a_rotation_and_reduces_to_the_shortest_arc():
 def humanoid_batch():
     """500 reachable target sets (FK of random poses), 2 conflicting ones, and 2 special ones."""
     rng = np.random.default_rng(4)
-    H = ik.humanoid()
+    H = ik.humanoid(limits=False)
     eff = tuple(H.index(n) for n in ik.HUMANOID_EFFECTORS)
     reach = np.asarray(ik.fk(H, random_rotations(rng, (500, H.num_joints))).positions)[:, eff]
     conflict = np.array([[[5.0, 1.4, 0], [5.0, 1.4, 0.1], [0.09, 0.09, 0], [-0.09, 0.09, 0]],

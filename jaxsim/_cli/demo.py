@@ -68,7 +68,7 @@ def _humanoid_section(out: str, fast: bool, lines: list[str]) -> None:
 
     from .. import ik, viz
 
-    H = ik.humanoid()
+    H = ik.humanoid(limits=False)
     eff = tuple(H.index(n) for n in ik.HUMANOID_EFFECTORS)
     targets = humanoid_targets(H)
     print(f"[demo] humanoid: hands trace circle and heart, feet planted ({len(targets)} frames) ...", flush=True)

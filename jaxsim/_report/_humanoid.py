@@ -24,7 +24,7 @@ def random_poses(rng, shape, amp=np.pi):
 
 def humanoid_section(doc: Doc) -> None:
     doc.progress("IK 5: the humanoid, CCD against FABRIK")
-    H = ik.humanoid(np.float64)
+    H = ik.humanoid(np.float64, limits=False)
     eff = tuple(H.index(n) for n in ik.HUMANOID_EFFECTORS)
     n, M, tol = (100 if doc.quick else 500), 100, 1e-4
     T = np.asarray(ik.fk(H, random_poses(np.random.default_rng(4), (n, H.num_joints))).positions)[:, eff]
@@ -59,7 +59,7 @@ def humanoid_section(doc: Doc) -> None:
         ax.legend(fontsize=7)
     fig.tight_layout()
     doc.md("## IK 5. The humanoid: CCD against FABRIK on a tree",
-           f"`ik.humanoid()` (24 joints) with both hands and both ankles as effectors; {n} target sets made by FK of "
+           f"`ik.humanoid(limits=False)` (24 joints) with both hands and both ankles as effectors; {n} target sets made by FK of "
            "random poses (each joint turned by an angle uniform in [0, π] about a random axis), solved from the rest "
            f"pose in float64, tol {tol:g}, at most {M} sweeps.  FABRIK places each sub-base (pelvis, chest) at the "
            "centroid of its branches' proposals and turns its child bones rigidly by Horn's rotation; CCD turns "

@@ -32,12 +32,38 @@ id  name          parent    offset (m)            at rest (world, m)
 22  r_ankle       r_knee    (0, -0.42, 0)         mirror of 18
 23  r_toe         r_ankle   (0, -0.07, 0.13)      mirror of 19
 ==  ============  ========  ====================  ========================
+
+Joint limits (``humanoid(limits=True)``, the default; angles in degrees).  A hinge turns
+about its axis in the parent frame; a swing-twist cone is about the bone's rest direction
+(the joint's first child bone), with the twist about that direction.
+
+============  ========================================================================
+joint         limit
+============  ========================================================================
+pelvis        free (the body's global orientation)
+spine1..3     swing-twist: cone 25, twist ±20 (each)
+neck          swing-twist: cone 45, twist ±60
+head          swing-twist: cone 40, twist ±45
+clavicle      swing-twist: cone 20, twist ±10
+shoulder      swing-twist: cone 100, twist ±90 (arm down, up, forward or back from the T-pose)
+elbow         hinge 0 to 150 about -y (left) / +y (right): the forearm folds forward (+z) only
+wrist         swing-twist: cone 70, twist ±80
+hand          fixed (the hand frame is the wrist's: an orientation target on a hand
+              is met by the wrist and the arm)
+hip           swing-twist: cone 100, twist ±45
+knee          hinge 0 to 150 about +x: the shin folds backward (-z) only
+ankle         swing-twist: cone 40, twist ±20
+toe           fixed
+============  ========================================================================
 """
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
+from ._limits import Fixed, Hinge, SwingTwist
 from ._skeleton import Skeleton
 
 _SPINE = [("pelvis", -1, (0.0, 1.0, 0.0)), ("spine1", 0, (0.0, 0.10, 0.0)), ("spine2", 1, (0.0, 0.12, 0.0)),
@@ -62,11 +88,33 @@ def _rows():
     return rows
 
 
-def humanoid(dtype=None) -> Skeleton:
-    """The built-in 24-joint humanoid (see the module docstring for names and rest pose).
+def _deg(x):
+    return math.radians(x)
+
+
+def _limit(name):
+    side, part = (name[0], name[2:]) if name[1:2] == "_" else ("", name)
+    sign = 1.0 if side == "l" else -1.0
+    cones = {"spine1": (25, 20), "spine2": (25, 20), "spine3": (25, 20), "neck": (45, 60), "head": (40, 45),
+             "clavicle": (20, 10), "shoulder": (100, 90), "wrist": (70, 80), "hip": (100, 45), "ankle": (40, 20)}
+    if part in cones:
+        cone, twist = cones[part]
+        return SwingTwist(_deg(cone), (-_deg(twist), _deg(twist)))
+    if part == "elbow":
+        return Hinge((0.0, -sign, 0.0), 0.0, _deg(150))
+    if part == "knee":
+        return Hinge((1.0, 0.0, 0.0), 0.0, _deg(150))
+    if part in ("hand", "toe"):
+        return Fixed()
+    return None
+
+
+def humanoid(dtype=None, limits: bool = True) -> Skeleton:
+    """The built-in 24-joint humanoid (see the module docstring for names, rest pose and limits).
 
     Args:
       dtype: float32 or float64; default: float64 under ``jax_enable_x64``, else float32.
+      limits: with the joint limits of the module docstring (default), or all joints free.
 
     Returns:
       ``Skeleton`` with ``names``; ``HUMANOID_EFFECTORS`` lists hands and ankles.
@@ -75,4 +123,6 @@ def humanoid(dtype=None) -> Skeleton:
     offsets = np.array([r[2] for r in rows])
     if dtype is not None:
         offsets = offsets.astype(dtype)
-    return Skeleton(parents=tuple(r[1] for r in rows), offsets=offsets, names=tuple(r[0] for r in rows))
+    names = tuple(r[0] for r in rows)
+    return Skeleton(parents=tuple(r[1] for r in rows), offsets=offsets, names=names,
+                    limits=tuple(_limit(n) for n in names) if limits else None)

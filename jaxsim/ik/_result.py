@@ -24,7 +24,11 @@ class IKResult:
       converged: ``()`` bool, ``error <= tol``.
       reachable: ``()`` bool, ``|target - root| <= reach``.
       trace: ``(max_iters,)`` error after each sweep (held constant once stopped), or
-        ``None`` when the solver was called with ``trace=False``.
+        ``None`` when the solver was called with ``trace=False``.  With orientation
+        targets it is the worst of the position errors and the weighted angle errors.
+      angle_error: ``(E,)`` angle (rad) between each effector's frame and its target
+        orientation, or ``None`` without orientation targets.  ``converged`` then also
+        needs ``orientation_weight * angle_error <= tol``.
     """
 
     rotations: jax.Array
@@ -34,3 +38,4 @@ class IKResult:
     converged: jax.Array
     reachable: jax.Array
     trace: jax.Array | None
+    angle_error: jax.Array | None = None

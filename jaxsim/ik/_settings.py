@@ -5,7 +5,7 @@ from __future__ import annotations
 import dataclasses
 from typing import ClassVar
 
-from .._validate import check_int, check_tol
+from .._validate import check_int, check_real, check_tol
 
 #: ``max_iters`` and ``tol`` when neither the call nor a settings object gives them.
 DEFAULT_MAX_ITERS = 100
@@ -48,19 +48,45 @@ class CCD(_Settings):
     kind: ClassVar[str] = "ccd"
 
 
-_BY_NAME = {"fabrik": FABRIK, "ccd": CCD}
+@dataclasses.dataclass(frozen=True)
+class LevenbergMarquardt(_Settings):
+    """Damped least-squares (Levenberg–Marquardt) settings; see ``jaxsim.ik._lm``.
+
+    Attributes:
+      max_iters: iterations scanned (static; a new value recompiles); a rejected trial
+        step counts as one.
+      tol: converged when every effector is within ``tol`` of its target (scene units).
+      damping: the starting relative damping ``lambda`` (> 0), adapted per iteration.
+    """
+
+    damping: float = 1e-2
+    kind: ClassVar[str] = "lm"
+
+    def __post_init__(self):
+        super().__post_init__()
+        object.__setattr__(self, "damping", check_real("damping", self.damping, minimum=0.0, strict=True))
 
 
-def resolve(solver, max_iters, tol):
-    """``(kind, max_iters, tol)`` from a settings object or a name plus keywords.
+_BY_NAME = {"fabrik": FABRIK, "ccd": CCD, "lm": LevenbergMarquardt}
+
+
+def resolve_settings(solver, max_iters, tol) -> _Settings:
+    """The settings object, given one or a name plus keywords.
 
     With a settings object, ``max_iters`` and ``tol`` must be left out (``None``).
     """
     if isinstance(solver, _Settings):
         if max_iters is not None or tol is not None:
             raise ValueError(f"give max_iters and tol in the settings object ({solver!r}), not beside it")
-        return solver.kind, solver.max_iters, solver.tol
+        return solver
     if not isinstance(solver, str) or solver not in _BY_NAME:
-        raise ValueError(f"solver must be one of {tuple(_BY_NAME)} or a jaxsim.ik.FABRIK / CCD object, got {solver!r}")
-    s = _BY_NAME[solver](DEFAULT_MAX_ITERS if max_iters is None else max_iters, DEFAULT_TOL if tol is None else tol)
+        raise ValueError(f"solver must be one of {tuple(_BY_NAME)} or a jaxsim.ik.FABRIK / CCD / "
+                         f"LevenbergMarquardt object, got {solver!r}")
+    return _BY_NAME[solver](DEFAULT_MAX_ITERS if max_iters is None else max_iters,
+                            DEFAULT_TOL if tol is None else tol)
+
+
+def resolve(solver, max_iters, tol):
+    """``(kind, max_iters, tol)`` of :func:`resolve_settings`."""
+    s = resolve_settings(solver, max_iters, tol)
     return s.kind, s.max_iters, s.tol

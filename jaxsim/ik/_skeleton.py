@@ -18,6 +18,7 @@ from .._dataclass import is_concrete, pytree_dataclass, static_field
 from .._dtype import as_float, check_array_dtype, tiny
 from .._validate import check_finite
 from ._chain import Chain
+from ._limits import check_limits
 
 
 def _check_parents(parents) -> tuple:
@@ -50,18 +51,24 @@ class Skeleton:
         ``offsets[i]`` joint ``i``'s offset from its parent in the parent's frame (scene
         units; metres for :func:`jaxsim.ik.humanoid`).
       names: optional static tuple of ``J`` distinct joint names.
+      limits: optional static tuple of ``J`` joint limits (``ik.Hinge``, ``ik.SwingTwist``,
+        ``ik.Fixed``, or ``None``/``ik.Free`` for a free joint); ``None`` = all free.
+        Every solver returns poses within them (see ``jaxsim.ik._limits``).
 
     Raises:
       ValueError: on wrong shapes, a parent out of order or out of range, a second root,
-        zero-length bones, non-finite values, duplicate names, or a half-precision dtype.
+        zero-length bones, non-finite values, duplicate names, limits for a different
+        number of joints, or a half-precision dtype.
     """
 
     parents: tuple = static_field()
     offsets: jax.Array
     names: tuple | None = static_field(default=None)
+    limits: tuple | None = static_field(default=None)
 
     def __post_init__(self):
         object.__setattr__(self, "parents", _check_parents(self.parents))
+        object.__setattr__(self, "limits", check_limits(self.limits, self.parents))
         if self.names is not None:
             names = tuple(str(n) for n in self.names)
             if len(names) != len(self.parents):
@@ -85,10 +92,14 @@ class Skeleton:
         object.__setattr__(self, "offsets", offsets)
 
     @classmethod
-    def from_chain(cls, chain: Chain, names=None) -> Skeleton:
+    def from_chain(cls, chain: Chain, names=None, limits=None) -> Skeleton:
         """The chain as a skeleton: ``parents = (-1, 0, 1, ..., J-2)``."""
         J = chain.num_joints
-        return cls(parents=(-1,) + tuple(range(J - 1)), offsets=chain.offsets, names=names)
+        return cls(parents=(-1,) + tuple(range(J - 1)), offsets=chain.offsets, names=names, limits=limits)
+
+    def with_limits(self, limits) -> Skeleton:
+        """The same skeleton with ``limits`` (one per joint, or ``None`` for none)."""
+        return dataclasses.replace(self, limits=limits)
 
     @property
     def num_joints(self) -> int:

@@ -32,7 +32,8 @@ from ._result import IKResult
 from ._skeleton import Skeleton, topology
 from ._symmetry import break_symmetry, break_symmetry_lists
 
-SOLVERS = ("ccd", "fabrik")
+SOLVERS = ("ccd", "fabrik", "lm")
+
 
 @functools.partial(jax.jit, static_argnames=("kind", "max_iters", "unroll", "trace", "early_exit"))
 def _run(offsets, target, local0, tol, *, kind, max_iters, unroll, trace, early_exit=False):

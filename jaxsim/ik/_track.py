@@ -16,6 +16,7 @@ from ._chain import Chain
 from ._fk import fk_joints
 from ._result import IKResult
 from ._settings import resolve
+from ._limits import limit_table, project_all
 from ._skeleton import Skeleton, topology
 from ._solve import _check_target_and_rotations, _run, check_settings
 from ._tree_fk import fk_tree
@@ -53,7 +54,12 @@ def jitter(rotations, start=None):
     return jnp.max(rotation_change(prev, rotations), axis=-1)
 
 
-def _frame(res, prev, target, tol, max_step, *, clamp, pose, errors):
+def _project_rows(table, local):
+    """``(J, 4)`` rotations projected onto the limits."""
+    return _quat.stack([_quat.stack(q) for q in project_all(table, [_quat.unstack(local[i]) for i in range(len(local))])])
+
+
+def _frame(res, prev, target, tol, max_step, *, clamp, pose, errors, limit=None):
     """One tracked frame after its solve: clamp the change per joint, and keep the last
     good pose if the frame is not finite (under jit a non-finite target cannot raise)."""
     local_prev, P_prev = prev
@@ -62,6 +68,8 @@ def _frame(res, prev, target, tol, max_step, *, clamp, pose, errors):
         a, b = _quat.unstack(local_prev, axis=1), _quat.unstack(local, axis=1)  # tuples of (J,)
         delta = _quat.clamp_angle(_quat.mul(_quat.conj(a), b), max_step)
         local = _quat.stack(_quat.renormalize(_quat.mul(a, delta)), axis=1)
+        if limit is not None:
+            local = limit(local)
         P = pose(local)
         err = errors(P)
         conv = jnp.all(err <= tol)
@@ -91,8 +99,9 @@ def _track(offsets, targets, local0, tol, max_step, *, kind, max_iters, unroll, 
 
 
 @functools.partial(jax.jit, static_argnames=("topo", "kind", "max_iters", "clamp"))
-def _track_tree(offsets, targets, local0, weights, tol, max_step, *, topo, kind, max_iters, clamp):
-    """``targets (T, E, 3)``, ``local0 (J, 4)``; layout as ``_track`` (component-first poses)."""
+def _track_tree(offsets, targets, local0, weights, tol, max_step, table, *, topo, kind, max_iters, clamp):
+    """``targets (T, E, 3)``, ``local0 (J, 4)``; layout as ``_track`` (component-first poses).
+    ``table``: ``LimitTable`` or ``None``; a clamped pose is projected back onto the limits."""
     J = local0.shape[0]
 
     def pose(local):
@@ -104,8 +113,10 @@ def _track_tree(offsets, targets, local0, weights, tol, max_step, *, topo, kind,
                           for k, e in enumerate(topo.effectors)])
 
     def frame(prev, target):
-        res = run_tree(offsets, target, prev[0], weights, tol, topo=topo, kind=kind, max_iters=max_iters, trace=True)
-        return _frame(res, prev, target, tol, max_step, clamp=clamp, pose=pose, errors=lambda P: errors(P, target))
+        res = run_tree(offsets, target, prev[0], weights, tol, table, topo=topo, kind=kind, max_iters=max_iters,
+                       trace=True)
+        return _frame(res, prev, target, tol, max_step, clamp=clamp, pose=pose, errors=lambda P: errors(P, target),
+                      limit=None if table is None else functools.partial(_project_rows, table))
 
     _, out = lax.scan(frame, (local0, pose(local0)), targets)
     return out
@@ -126,7 +137,7 @@ def track(chain: Chain | Skeleton, targets, *, solver="fabrik", rotations=None, 
       max_iters, tol: per-frame solver settings with a solver name (default 100 and 1e-4).
       max_step_angle: if given (radians), each joint's local rotation may change by at
         most this much per frame; the solution is pulled back along the same rotation
-        axis.  This is the lab's answer to frame-to-frame jitter; the price is tracking
+        axis (and projected onto the joint limits of a limited skeleton).  This is the lab's answer to frame-to-frame jitter; the price is tracking
         error while the bound is active (reported in ``error``/``converged``).
       unroll: chains: unroll the joint loop (default: rolled, the faster choice for one target).
 
@@ -138,6 +149,8 @@ def track(chain: Chain | Skeleton, targets, *, solver="fabrik", rotations=None, 
     """
     solver, max_iters, tol = resolve(solver, max_iters, tol)
     check_settings(chain, solver, max_iters, tol)
+    if solver == "lm" and not isinstance(chain, Skeleton):
+        raise ValueError("track supports the sweep solvers, FABRIK and CCD; solve frames with ik.solve for LM")
     dtype = chain.offsets.dtype
     J = chain.num_joints
     if max_step_angle is not None and is_concrete(max_step_angle):
@@ -149,8 +162,11 @@ def track(chain: Chain | Skeleton, targets, *, solver="fabrik", rotations=None, 
             raise ValueError(f"targets must have shape (T, E, 3), got {targets.shape}")
         if rotations.shape != (J, 4):
             raise ValueError(f"rotations must have shape ({J}, 4), got {rotations.shape}")
+        if solver == "lm":
+            raise ValueError("track supports the sweep solvers, FABRIK and CCD; solve frames with ik.solve for LM")
         res = _track_tree(chain.offsets, targets, rotations, weights, jnp.asarray(tol, dtype),
-                          max_step, topo=topology(chain.parents, effectors), kind=solver, max_iters=int(max_iters),
+                          max_step, limit_table(chain), topo=topology(chain.parents, effectors), kind=solver,
+                          max_iters=int(max_iters),
                           clamp=max_step_angle is not None)
         return res
     if effectors is not None or weights is not None:
