@@ -1,6 +1,9 @@
 """IK throughput: batched FABRIK and CCD on a 6-joint unit-bone chain, 100k float32 targets,
 and on the humanoid (hands and ankles as effectors, 10k target sets).
 
+Also the humanoid with its joint limits (FABRIK, CCD and LM to tol 1e-4), and a 4-hinge
+chain with joint ranges against ikpy.
+
 Settings: (a) exactly 10 sweeps (tol=0), (b) tol=1e-4 with max_iters=100.  Baselines in
 the same run: a numpy-vectorised FABRIK written here, ``jax.vmap`` of the one-target
 solver (batch leading), the rolled joint loop, and ikpy if installed.
@@ -8,7 +11,7 @@ solver (batch leading), the rolled joint loop, and ikpy if installed.
 Each ``solve`` row also records ``hlo_fusions``, the fusion count of its optimised HLO
 (``jax.jit(f).lower(t).compile().as_text()``).
 
-Run: ``python benchmarks/ik_throughput.py [--n 100000]``; writes
+Run: ``python benchmarks/ik_throughput.py [--n 100000] [--only-limits]``; writes
 ``benchmarks/results/ik_throughput.json``.
 """
 
@@ -97,25 +100,134 @@ def humanoid_case(record, n_sets=10_000):
     return out
 
 
+def limits_case(record, n_sets=1000, n_lm=16):
+    """The humanoid with its joint limits: all three solvers to tol 1e-4 (<= 100 iterations,
+    early exit) on float32 target sets made by FK of random poses projected onto the limits,
+    plus LM on the free humanoid for comparison."""
+    rng = np.random.default_rng(2)
+    out = {}
+    H = ik.humanoid(np.float32)
+    eff = tuple(H.index(k) for k in ik.HUMANOID_EFFECTORS)
+    R = ik.project_limits(H, random_poses(rng, (n_sets, H.num_joints)))
+    T = jnp.asarray(np.asarray(ik.fk(H, R).positions)[:, eff], jnp.float32)
+    for name, model, solver in (("fabrik", H, "fabrik"), ("ccd", H, "ccd"), ("lm", H, "lm"),
+                                ("lm_free", ik.humanoid(np.float32, limits=False), "lm")):
+        fn = jax.jit(lambda t, model=model, solver=solver: ik.solve(model, t, solver=solver, effectors=eff,
+                                                                    max_iters=100, tol=1e-4, early_exit=True))
+        Tn = T[:n_lm] if solver == "lm" else T  # LM costs ~1000x more per set: a smaller batch
+        timing = time_call(fn, Tn, repeats=1 if solver == "lm" else 2)
+        res = fn(Tn)
+        conv = np.asarray(res.converged)
+        extra = {"mean_iterations": float(jnp.mean(res.iterations)),
+                 "mean_iterations_converged": float(np.mean(np.asarray(res.iterations)[conv])) if conv.any() else None,
+                 "converged_fraction": float(conv.mean()),
+                 "max_limit_violation_rad": float(jnp.max(ik.limit_violation(H, res.rotations)))}
+        row = record(f"humanoid limits {name} tol 1e-4 float32", "humanoid limits " + name, "tol 1e-4", timing,
+                     len(Tn), extra)
+        out[name] = {k: row[k] for k in ("solves_per_s", "compile_s", "mean_iterations", "mean_iterations_converged",
+                                         "converged_fraction", "max_limit_violation_rad")}
+    return out
+
+
+def hinge_chain_case(record, n=200):
+    """A 4-hinge chain (axes z, y, z, y; ranges [-2, 2] rad; unit bones), float64 targets by FK of
+    random in-range angles: our three solvers, and ikpy on the same chain when installed."""
+    was = jax.config.jax_enable_x64
+    jax.config.update("jax_enable_x64", True)
+    axes = [(0, 0, 1), (0, 1, 0), (0, 0, 1), (0, 1, 0)]
+    offsets = np.array([[0, 0, 0]] + [[1.0, 0, 0]] * 4)
+    sk = ik.Skeleton.from_chain(ik.Chain(offsets), limits=tuple(ik.Hinge(a, -2.0, 2.0) for a in axes) + (None,))
+    ang = np.random.default_rng(3).uniform(-2, 2, size=(n, 4))
+    q = np.zeros((n, 5, 4))
+    q[..., 0] = 1.0
+    for j, a in enumerate(axes):
+        q[:, j, 0] = np.cos(ang[:, j] / 2)
+        q[:, j, 1:] = np.sin(ang[:, j] / 2)[:, None] * np.asarray(a)
+    T = np.asarray(ik.fk(sk, q).positions)[:, -1]
+    out = {}
+    for solver in ("fabrik", "ccd", "lm"):
+        fn = jax.jit(lambda t, solver=solver: ik.solve(sk, t[:, None], solver=solver, effectors=(4,), max_iters=100,
+                                                       tol=1e-4, early_exit=True))
+        timing = time_call(fn, T, repeats=2)
+        res = fn(T)
+        row = record(f"hinge chain {solver} tol 1e-4 float64", "hinge chain " + solver, "tol 1e-4", timing, n,
+                     {"converged_fraction": float(jnp.mean(res.converged)),
+                      "mean_iterations": float(jnp.mean(res.iterations))})
+        out[solver] = {k: row[k] for k in ("solves_per_s", "converged_fraction", "mean_iterations")}
+    try:
+        from ikpy.chain import Chain as IkpyChain
+        from ikpy.link import OriginLink, URDFLink
+
+        links = [OriginLink()] + [URDFLink(name=f"j{i}", origin_translation=[0, 0, 0] if i == 0 else [1, 0, 0],
+                                           origin_orientation=[0, 0, 0], rotation=a, bounds=(-2.0, 2.0))
+                                  for i, a in enumerate(axes)]
+        links.append(URDFLink(name="end", origin_translation=[1, 0, 0], origin_orientation=[0, 0, 0],
+                              joint_type="fixed"))
+        kc = IkpyChain(links, active_links_mask=[False] + [True] * 4 + [False])
+        k = 40
+        kc.inverse_kinematics(T[0])  # warm-up
+        t0 = time.perf_counter()
+        sols = [kc.inverse_kinematics(t) for t in T[:k]]
+        secs = time.perf_counter() - t0
+        err = np.array([np.linalg.norm(kc.forward_kinematics(s)[:3, 3] - t) for s, t in zip(sols, T[:k])])
+        rows_extra = {"converged_fraction": float(np.mean(err <= 1e-4))}
+        record("hinge chain ikpy (scipy) float64", "hinge chain ikpy", "default", {"run_s": secs, "compile_s": 0.0},
+               k, rows_extra)
+        out["ikpy"] = {"solves_per_s": k / secs, **rows_extra}
+    except ImportError:
+        print("ikpy not installed: pip install -e '.[bench]' to compare", flush=True)
+    jax.config.update("jax_enable_x64", was)
+    return out
+
+
+def recorder(rows):
+    """``record(label, solver, mode, timing, n_solves, extra)``: append a row to ``rows`` and print it."""
+    def record(label, solver, mode, timing, n_solves, extra=None):
+        row = {"label": label, "solver": solver, "mode": mode, "n": n_solves,
+               "solves_per_s": n_solves / timing["run_s"], **timing, **(extra or {})}
+        rows.append(row)
+        print(f"{label:44s} {row['solves_per_s'] / 1e6:10.5f} M solves/s  run {1e3 * timing['run_s']:9.2f} ms"
+              f"  compile {timing['compile_s']:6.2f} s  "
+              f"{ {k: row[k] for k in ('converged_fraction', 'mean_iterations') if k in row} }", flush=True)
+        return row
+    return record
+
+
+def only_limits():
+    """Re-run the humanoid-with-limits and hinge-chain cases; replace their rows and summary
+    entries in ``results/ik_throughput.json``, keeping the rest of the file."""
+    import json
+    import os
+
+    path = os.path.join(os.path.dirname(__file__), "results", "ik_throughput.json")
+    with open(path) as f:
+        old = json.load(f)
+    rows = []
+    record = recorder(rows)
+    limits, hinge = limits_case(record), hinge_chain_case(record)
+    labels = {r["label"] for r in rows}
+    payload = {k: v for k, v in old.items() if k not in ("benchmark", "machine", "timestamp")}
+    payload["rows"] = [r for r in old["rows"] if r["label"] not in labels] + rows
+    payload["summary"] = {**old["summary"], "humanoid_limits": limits, "hinge_chain": hinge}
+    write("ik_throughput", payload)
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--n", type=int, default=100_000)
     ap.add_argument("--humanoid-sets", type=int, default=10_000)
+    ap.add_argument("--only-limits", action="store_true",
+                    help="run only the joint-limit cases and update them in the existing JSON")
     args = ap.parse_args()
+    if args.only_limits:
+        return only_limits()
     n = args.n
     chain = ik.straight_chain(np.ones(5, np.float32), direction=(0, 1, 0))
     chain = ik.Chain(np.asarray(chain.offsets, np.float32))
     rng = np.random.default_rng(0)
     targets = jnp.asarray(random_targets(n, 5.0, rng))
     rows = []
-
-    def record(label, solver, mode, timing, n_solves, extra=None):
-        row = {"label": label, "solver": solver, "mode": mode, "n": n_solves,
-               "solves_per_s": n_solves / timing["run_s"], **timing, **(extra or {})}
-        rows.append(row)
-        print(f"{label:44s} {row['solves_per_s'] / 1e6:8.3f} M solves/s  run {1e3 * timing['run_s']:8.2f} ms"
-              f"  compile {timing['compile_s']:6.2f} s", flush=True)
-        return row
+    record = recorder(rows)
 
     for solver in ("fabrik", "ccd"):
         for mode, kw in (("10 sweeps", dict(max_iters=10, tol=0.0)), ("tol 1e-4", dict(max_iters=100, tol=1e-4))):
@@ -136,6 +248,8 @@ def main():
             record(f"{solver} {mode} vmap(one-target)", solver, mode, time_call(vm, targets, repeats=3), n)
 
     humanoid = humanoid_case(record, args.humanoid_sets)
+    limits = limits_case(record)
+    hinge_chain = hinge_chain_case(record)
 
     # numpy baseline, 10 sweeps; timed on a slice and scaled (it is linear in n)
     m = min(n, 20_000)
@@ -184,6 +298,8 @@ def main():
         "max_abs_diff_vs_numpy_fabrik": agree,
         "targets": {"fabrik_10": 5e6, "ccd_10": 1.5e6, "vs_numpy": 15.0},
         "humanoid": humanoid,
+        "humanoid_limits": limits,
+        "hinge_chain": hinge_chain,
     }
     print(summary)
     write("ik_throughput", {"n_targets": n, "chain": "6 joints, unit bones", "dtype": "float32", "rows": rows, "summary": summary})

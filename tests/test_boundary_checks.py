@@ -143,7 +143,7 @@ def test_viz_checks(tmp_path):
     raises("plane must be one of", viz.plot_tracking, res, TARGETS, plane="ab")
     raises("plane must be one of", viz.plot_chain, res.positions[0], plane="q")
     raises("no frames", viz.animate_tracking, ik.track(ARM, TARGETS)[:0] if False else res.__class__(
-        **{k: v[:0] for k, v in vars(res).items()}), TARGETS[:0], str(tmp_path / "a.gif"))
+        **{k: None if v is None else v[:0] for k, v in vars(res).items()}), TARGETS[:0], str(tmp_path / "a.gif"))
     raises("frames but the result has", viz.animate_tracking, res, TARGETS[:3], str(tmp_path / "a.gif"))
     raises("fps must be > 0", viz.animate_tracking, res, TARGETS, str(tmp_path / "a.gif"), fps=0)
     c = C.grid(2, 0.2)

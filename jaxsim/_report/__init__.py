@@ -13,7 +13,7 @@ def run(out: str = "jaxsim-report", quick: bool = False) -> int:
     jax.config.update("jax_enable_x64", True)  # float64 references; float32 cases are built explicitly
     import matplotlib
 
-    from . import _cloth, _humanoid, _ik
+    from . import _cloth, _humanoid, _ik, _limits
     from ._doc import Doc
 
     doc = Doc(out, quick)
@@ -25,6 +25,7 @@ def run(out: str = "jaxsim-report", quick: bool = False) -> int:
            f"computed in this run{' (quick mode: small sizes)' if quick else ''}.")
     _ik.run(doc)
     _humanoid.humanoid_section(doc)
+    _limits.limits_section(doc)
     _cloth.run(doc)
     doc.md(f"Total wall time: {time.perf_counter() - t0:.0f} s.")
     path = doc.write()

@@ -22,6 +22,35 @@ def random_poses(rng, shape, amp=np.pi):
     return np.concatenate([np.cos(ang / 2), np.sin(ang / 2) * ax], axis=-1)
 
 
+def timed(f):
+    """``(result, seconds of a warm run, compile seconds)`` of ``f()``."""
+    t0 = time.perf_counter()
+    jax.block_until_ready(f())
+    first = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    res = jax.block_until_ready(f())
+    secs = time.perf_counter() - t0
+    return res, secs, first - secs
+
+
+def error_curves(axes, trace, per_iteration, color, name):
+    """Median and 90th percentile of ``trace (n, M)`` against iterations (left) and time (right)."""
+    steps = np.arange(1, trace.shape[1] + 1)
+    for q, style in ((50, "-"), (90, "--")):
+        p = np.percentile(trace, q, axis=0)
+        axes[0, 0].semilogy(steps, p, style, color=color, label=f"{name} {q}th pct")
+        axes[0, 1].semilogy(1e6 * per_iteration * steps, p, style, color=color, label=f"{name} {q}th pct")
+
+
+def label_error_axes(fig, axes, tol, xlabel):
+    for ax, xl in zip(axes[0], (xlabel, "time per solve (µs)")):
+        ax.axhline(tol, color="0.6", lw=0.8)
+        ax.set_xlabel(xl)
+        ax.set_ylabel("worst effector error (m)")
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+
+
 def humanoid_section(doc: Doc) -> None:
     doc.progress("IK 5: the humanoid, CCD against FABRIK")
     H = ik.humanoid(np.float64, limits=False)
@@ -34,30 +63,16 @@ def humanoid_section(doc: Doc) -> None:
         def f(s=s):
             return ik.solve(H, T, solver=s, effectors=eff, max_iters=M, tol=tol, trace=True)
 
-        t0 = time.perf_counter()
-        jax.block_until_ready(f())
-        first = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        res = jax.block_until_ready(f())
-        secs = time.perf_counter() - t0
+        res, secs, compile_s = timed(f)
         tr = np.asarray(res.trace)
         it = np.asarray(res.iterations)
         per_sweep = secs / M / n  # the scan runs max_iters sweeps (masked no-ops once an element is done)
-        sweeps = np.arange(1, M + 1)
-        for q, style in ((50, "-"), (90, "--")):
-            p = np.percentile(tr, q, axis=0)
-            axes[0, 0].semilogy(sweeps, p, style, color=COLORS[s], label=f"{s} {q}th pct")
-            axes[0, 1].semilogy(1e6 * per_sweep * sweeps, p, style, color=COLORS[s], label=f"{s} {q}th pct")
+        error_curves(axes, tr, per_sweep, COLORS[s], s)
         conv = np.asarray(res.converged)
         rows.append({"solver": s, "conv": 100.0 * conv.mean(), "sweeps": float(it[conv].mean()) if conv.any() else "",
                      "median": float(np.median(np.asarray(res.error).max(-1))), "us": 1e6 * per_sweep,
-                     "compile": first - secs})
-    for ax, xl in zip(axes[0], ("sweep", "time per solve (µs)")):
-        ax.axhline(tol, color="0.6", lw=0.8)
-        ax.set_xlabel(xl)
-        ax.set_ylabel("worst effector error (m)")
-        ax.legend(fontsize=7)
-    fig.tight_layout()
+                     "compile": compile_s})
+    label_error_axes(fig, axes, tol, "sweep")
     doc.md("## IK 5. The humanoid: CCD against FABRIK on a tree",
            f"`ik.humanoid(limits=False)` (24 joints) with both hands and both ankles as effectors; {n} target sets made by FK of "
            "random poses (each joint turned by an angle uniform in [0, π] about a random axis), solved from the rest "

@@ -117,8 +117,12 @@ def _residual(topo, offsets, L, tgt, w, orient):
     return r, functools.reduce(jnp.maximum, effector_sq_errors(topo, P, G, tgt, orient))
 
 
-def _lm_one(offsets, targets, local0, weights, tol, table, orients, orient_weights, damping, *, topo, max_iters,
-            trace, early_exit):
+def lm_one(offsets, targets, local0, weights, tol, table, orients, orient_weights, damping, *, topo, max_iters,
+           trace, early_exit):
+    """One LM solve: ``targets (E, 3)``, ``local0 (J, 4)``, ``orients (E, 4)`` or ``None``.
+
+    Returns the ``IKResult`` of one target (``rotations (J, 4)``, ``error (E,)``, ...).
+    """
     J, E = len(topo.parents), len(topo.effectors)
     dtype = offsets.dtype
     tgt = [_quat.unstack(targets[k]) for k in range(E)]
@@ -186,7 +190,7 @@ def run_lm(offsets, targets, local0, weights, tol, table, orients, orient_weight
            trace, early_exit=False):
     """LM IK over a flat batch: ``targets (N, E, 3)``, ``local0 (N, J, 4)``, ``orients (N, E, 4)`` or
     ``None``; ``weights``/``orient_weights`` ``(E,)``.  Returns a batch-leading ``IKResult``."""
-    one = functools.partial(_lm_one, topo=topo, max_iters=max_iters, trace=trace, early_exit=early_exit)
+    one = functools.partial(lm_one, topo=topo, max_iters=max_iters, trace=trace, early_exit=early_exit)
     axes = (None, 0, 0, None, None, None, None if orients is None else 0, None, None)
     return jax.vmap(one, in_axes=axes)(offsets, targets, local0, weights, tol, table, orients, orient_weights,
                                        damping)

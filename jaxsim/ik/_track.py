@@ -15,7 +15,8 @@ from . import _joints, _quat
 from ._chain import Chain
 from ._fk import fk_joints
 from ._result import IKResult
-from ._settings import resolve
+from ._lm import lm_one
+from ._settings import resolve_settings
 from ._limits import limit_table, project_all
 from ._skeleton import Skeleton, topology
 from ._solve import _check_target_and_rotations, _run, check_settings
@@ -99,7 +100,7 @@ def _track(offsets, targets, local0, tol, max_step, *, kind, max_iters, unroll, 
 
 
 @functools.partial(jax.jit, static_argnames=("topo", "kind", "max_iters", "clamp"))
-def _track_tree(offsets, targets, local0, weights, tol, max_step, table, *, topo, kind, max_iters, clamp):
+def _track_tree(offsets, targets, local0, weights, tol, max_step, table, damping, *, topo, kind, max_iters, clamp):
     """``targets (T, E, 3)``, ``local0 (J, 4)``; layout as ``_track`` (component-first poses).
     ``table``: ``LimitTable`` or ``None``; a clamped pose is projected back onto the limits."""
     J = local0.shape[0]
@@ -113,8 +114,12 @@ def _track_tree(offsets, targets, local0, weights, tol, max_step, table, *, topo
                           for k, e in enumerate(topo.effectors)])
 
     def frame(prev, target):
-        res = run_tree(offsets, target, prev[0], weights, tol, table, topo=topo, kind=kind, max_iters=max_iters,
-                       trace=True)
+        if kind == "lm":
+            res = lm_one(offsets, target, prev[0], weights, tol, table, None, None, damping, topo=topo,
+                         max_iters=max_iters, trace=True, early_exit=False)
+        else:
+            res = run_tree(offsets, target, prev[0], weights, tol, table, topo=topo, kind=kind, max_iters=max_iters,
+                           trace=True)
         return _frame(res, prev, target, tol, max_step, clamp=clamp, pose=pose, errors=lambda P: errors(P, target),
                       limit=None if table is None else functools.partial(_project_rows, table))
 
@@ -131,7 +136,8 @@ def track(chain: Chain | Skeleton, targets, *, solver="fabrik", rotations=None, 
     Args:
       chain: a ``Chain`` (``offsets (J, 3)``) or a ``Skeleton``.
       targets: ``(T, 3)`` one target per frame; on a skeleton ``(T, E, 3)``.
-      solver: ``jaxsim.ik.FABRIK(...)`` / ``CCD(...)``, or ``"fabrik"`` / ``"ccd"``.
+      solver: ``jaxsim.ik.FABRIK(...)`` / ``CCD(...)`` / ``LevenbergMarquardt(...)``, or
+        ``"fabrik"`` / ``"ccd"`` / ``"lm"``.
       rotations: ``(J, 4)`` pose before frame 0; ``None`` = rest pose.
       effectors, weights: skeleton only, as in :func:`jaxsim.ik.ccd`.
       max_iters, tol: per-frame solver settings with a solver name (default 100 and 1e-4).
@@ -147,10 +153,16 @@ def track(chain: Chain | Skeleton, targets, *, solver="fabrik", rotations=None, 
       keeps the previous pose and reports ``error = inf``, ``iterations = 0``,
       ``converged = False``, and later frames go on from the last good pose.
     """
-    solver, max_iters, tol = resolve(solver, max_iters, tol)
+    settings = resolve_settings(solver, max_iters, tol)
+    solver, max_iters, tol = settings.kind, settings.max_iters, settings.tol
     check_settings(chain, solver, max_iters, tol)
     if solver == "lm" and not isinstance(chain, Skeleton):
-        raise ValueError("track supports the sweep solvers, FABRIK and CCD; solve frames with ik.solve for LM")
+        chain = Skeleton.from_chain(chain)
+        res = track(chain, jnp.asarray(targets)[:, None], solver=settings, rotations=rotations,
+                    max_step_angle=max_step_angle)
+        return IKResult(rotations=res.rotations, positions=res.positions, error=res.error[:, 0],
+                        iterations=res.iterations, converged=res.converged, reachable=res.reachable[:, 0],
+                        trace=res.trace)
     dtype = chain.offsets.dtype
     J = chain.num_joints
     if max_step_angle is not None and is_concrete(max_step_angle):
@@ -162,10 +174,8 @@ def track(chain: Chain | Skeleton, targets, *, solver="fabrik", rotations=None, 
             raise ValueError(f"targets must have shape (T, E, 3), got {targets.shape}")
         if rotations.shape != (J, 4):
             raise ValueError(f"rotations must have shape ({J}, 4), got {rotations.shape}")
-        if solver == "lm":
-            raise ValueError("track supports the sweep solvers, FABRIK and CCD; solve frames with ik.solve for LM")
         res = _track_tree(chain.offsets, targets, rotations, weights, jnp.asarray(tol, dtype),
-                          max_step, limit_table(chain), topo=topology(chain.parents, effectors), kind=solver,
+                          max_step, limit_table(chain), jnp.asarray(getattr(settings, "damping", 0.0), dtype), topo=topology(chain.parents, effectors), kind=solver,
                           max_iters=int(max_iters),
                           clamp=max_step_angle is not None)
         return res
