@@ -101,7 +101,7 @@ def _limits_section(out: str, fast: bool, lines: list[str]) -> None:
     parents = H.parents + tuple(J if p < 0 else p + J for p in H.parents)  # two figures, one drawing
     viz.animate_skeleton(parents, P, os.path.join(out, "humanoid_limits.gif"), effectors=eff + tuple(e + J for e in eff),
                          targets=T, views=("front",), stride=10 if fast else 2,
-                         title="FABRIK: limits off (left) and on (right)")
+                         title="FABRIK: limits off (left) and on (right)", dpi=100)
     lines += ["## IK: the humanoid with joint limits off and on (FABRIK on the tree)", "",
               "| limits | mean sweeps | max error (m) | frames converged | max limit violation (rad) | "
               "elbow angle range (°) | file |", "|---|---|---|---|---|---|---|"]
