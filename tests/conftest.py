@@ -9,9 +9,14 @@ import os
 import tempfile
 
 os.environ.setdefault("MPLBACKEND", "Agg")
-# One persistent compilation cache for the session, inherited by the subprocesses and
-# notebook kernels the suite starts, so identical programs compile once across processes.
-os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", os.path.join(tempfile.gettempdir(), "jaxsim-test-jax-cache"))
+# A persistent compilation cache per test process, inherited by the subprocesses and
+# notebook kernels that process starts (it waits for them), so identical programs compile
+# once.  Never one folder for two concurrent processes: JAX writes cache entries without a
+# lock, and a process that reads an entry while another is still writing it aborts.
+os.environ.setdefault(
+    "JAX_COMPILATION_CACHE_DIR",
+    os.path.join(tempfile.gettempdir(), "jaxsim-test-jax-cache-" + os.environ.get("PYTEST_XDIST_WORKER", "main")),
+)
 
 import jax  # noqa: E402
 import numpy as np  # noqa: E402
