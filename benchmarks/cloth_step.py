@@ -11,7 +11,14 @@ state, ``x_ref`` a converged float64 Newton step (tol 1e-12).  The scipy referen
 is a Newton loop on the analytic Hessian with ``spsolve``, written here, iterated to
 the same Newton tolerance.
 
-Run: ``python benchmarks/cloth_step.py [--quick]``; writes ``benchmarks/results/cloth_step.json``.
+Contact (``--only-contact`` runs just this part and updates the JSON's ``contact``
+rows): a 32x32 cloth, 1.6 m wide, g = 9.8, falling onto a sphere (radius 0.4, friction
+0.3) for 30 steps, then 10 converged float64 CG steps of it draped, against the same
+cloth and state without the sphere, in the same run.  Two scenes: B-like (1 kg per
+particle, k = 100, dt = 1/60) and C (total mass 1, k = 1e3, dt = 1/30, stiff).  Reported: ms per step, Newton and CG iterations
+per step, and active contacts (particles closer than ``dhat`` to the sphere).
+
+Run: ``python benchmarks/cloth_step.py [--quick] [--only-contact]``; writes ``benchmarks/results/cloth_step.json``.
 """
 
 from __future__ import annotations
@@ -85,10 +92,54 @@ def scipy_newton(c, x0, v0, h, tol, iters=50):
     return x, n_it
 
 
+def contact_rows():
+    """Both contact scenes (module doc)."""
+    return (contact_case("B", mass=1.0, k=100.0, dt=1 / 60)
+            + contact_case("C", mass=1.0 / 32**2, k=1e3, dt=1 / 30))
+
+
+def contact_case(tag, mass, k, dt, n=32, steps=10):
+    """The draped-on-a-sphere scene against the same cloth without contact (module doc)."""
+    sphere = C.Sphere(jnp.array([0.0, 0.5, 0.0]), 0.4, friction=0.3)
+    span = 1.6
+    base = C.grid(n - 1, span / (n - 1), origin=(-span / 2, 1.0, -span / 2), mass=mass, stiffness=k,
+                  gravity=9.8, pins=[], dtype=np.float64)
+    draped = C.replace(base, colliders=(sphere,))
+    integ = C.ImplicitEuler(solver="cg")
+    warm, _ = C.rollout(draped, C.State.at_rest(draped), dt, 30, integ)
+    s0 = C.State(warm.x[-1], warm.v[-1])
+    rows = []
+    for label, sc in (("no contact", base), ("sphere contact", draped)):
+        fn = jax.jit(lambda s, sc=sc: C.rollout(sc, s, dt, steps, integ))
+        tm = time_call(fn, s0, repeats=5, budget=20.0)
+        states, info = fn(s0)
+        active = int(jnp.sum(sphere.distance(states.x[-1]) < draped.contact_gap))
+        row = {"scene": f"{tag} {n}x{n} m={mass:.0e} k={k:.0e} dt=1/{round(1 / dt)} on a sphere", "N": n * n, "method": label, "dtype": "float64",
+               "ms_per_step": 1e3 * tm["run_s"] / steps, "compile_s": tm["compile_s"],
+               "newton_per_step": float(jnp.mean(info.newton_iters)), "cg_per_step": float(jnp.mean(info.cg_iters)),
+               "converged": float(jnp.mean(info.converged)), "active_contacts": active if sc is draped else 0,
+               "min_distance": float(jnp.min(sphere.distance(states.x)))}
+        rows.append(row)
+    rows[1]["cost_vs_no_contact"] = rows[1]["ms_per_step"] / rows[0]["ms_per_step"]
+    for r in rows:
+        print(f"{r['scene']:44s} {r['method']:15s} {r['ms_per_step']:8.2f} ms/step  newton {r['newton_per_step']:.1f}  "
+              f"cg {r['cg_per_step']:.0f}  contacts {r['active_contacts']}  converged {r['converged']:.0%}", flush=True)
+    return rows
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--only-contact", action="store_true", help="run the contact rows only and update the JSON")
     args = ap.parse_args()
+    if args.only_contact:
+        import json
+        import os
+        path = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results", "cloth_step.json")
+        old = json.load(open(path)) if os.path.exists(path) else {"rows": [], "quick": args.quick, "complete": False}
+        old["contact"] = contact_rows()
+        write("cloth_step", {k: v for k, v in old.items() if k not in ("benchmark", "machine", "timestamp")})
+        return
     rows = []
     for name, (scene, dt) in scenes(args.quick).items():
         N = scene.num_particles
@@ -131,7 +182,7 @@ def main():
                       f"newton {row['newton']} cg {row['cg_iters']}  x{row['speedup_vs_scipy']:.1f} vs scipy", flush=True)
         # written after every scene, so an interrupted run keeps what it measured
         write("cloth_step", {"rows": rows, "quick": args.quick, "complete": False})
-    write("cloth_step", {"rows": rows, "quick": args.quick, "complete": True})
+    write("cloth_step", {"rows": rows, "quick": args.quick, "complete": True, "contact": contact_rows()})
 
 
 if __name__ == "__main__":

@@ -23,6 +23,10 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
+# Run each computation before the next one is traced or compiled: no program executes on
+# the CPU thread pool while another one compiles (test processes only; the library keeps
+# JAX's default asynchronous dispatch).
+jax.config.update("jax_cpu_enable_async_dispatch", False)
 
 #: Tests that take the longest, started first so the workers finish together.
 SLOW_FIRST = ("test_report.py", "test_notebooks.py", "test_sharding.py", "test_cli.py", "test_cloth_stability.py")

@@ -5,6 +5,8 @@ from __future__ import annotations
 import os
 import time
 
+from .demo_contact import contact_section
+
 
 def _timed(fn):
     """Run ``fn`` twice (compile, then measured); return ``(result, compile_s, run_s)``."""
@@ -149,10 +151,12 @@ def run(out: str = "jaxsim-demo", fast: bool = False) -> int:
     _humanoid_section(out, fast, lines)
     _limits_section(out, fast, lines)
     _cloth_section(out, fast, lines)
+    contact_section(out, fast, lines)
     lines.append(f"Total wall time: {time.perf_counter() - t0:.1f} s")
     path = os.path.join(out, "summary.md")
     with open(path, "w") as f:
         f.write("\n".join(lines) + "\n")
     print("\n".join(lines))
-    print(f"[demo] wrote {os.path.abspath(out)}/ (summary.md, ik_*.gif, ik_*.png, humanoid.gif, cloth.gif, cloth.png)")
+    print(f"[demo] wrote {os.path.abspath(out)}/ (summary.md, ik_*.gif, ik_*.png, humanoid.gif, cloth.gif, cloth.png, "
+          "cloth_sphere.gif, cloth_floor.gif)")
     return 0

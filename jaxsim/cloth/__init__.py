@@ -1,8 +1,12 @@
 """Mass-spring cloth: one energy definition, implicit Euler by Newton (dense or CG), explicit baseline."""
 
 from ._batch import batch_rollout, stack_scenes
+from ._colliders import Capsule, Plane, Sphere
+from ._contact import FRICTION_EPS_V
 from ._diagnostics import EnergyReport, energy_report
 from ._energy import element_blocks, energy, forces, kinetic_energy, spring_energy, spring_hessian, total_energy
+from ._mesh import disk, from_mesh, grid_triangles, mesh_springs
+from ._obj import TABLECLOTH_OBJ, read_obj, write_obj, write_obj_sequence
 from ._integrators import AUTO_DENSE_MAX_PARTICLES, ExplicitEuler, ImplicitEuler
 from ._scene import Cloth, State, grid, grid_springs, lab_cloth, pin_mask, replace
 from ._step import StepInfo, rollout, step
@@ -10,5 +14,6 @@ from ._step import StepInfo, rollout, step
 __all__ = [
     "Cloth", "State", "StepInfo", "EnergyReport", "energy_report", "ExplicitEuler", "ImplicitEuler", "AUTO_DENSE_MAX_PARTICLES",
     "grid", "grid_springs", "lab_cloth", "pin_mask", "replace", "energy", "spring_energy", "forces",
-    "kinetic_energy", "total_energy", "element_blocks", "spring_hessian", "step", "rollout", "batch_rollout", "stack_scenes",
+    "Plane", "Sphere", "Capsule", "FRICTION_EPS_V", "from_mesh", "mesh_springs", "grid_triangles", "disk",
+    "read_obj", "write_obj", "write_obj_sequence", "TABLECLOTH_OBJ", "kinetic_energy", "total_energy", "element_blocks", "spring_hessian", "step", "rollout", "batch_rollout", "stack_scenes",
 ]

@@ -13,6 +13,7 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
+from . import _contact as ct
 from . import _problem as pr
 from ._linsolve import pcg
 from ._newton import block_jacobi
@@ -53,7 +54,8 @@ def _solution_jvp(integ, primals, tangents):
             A = jax.vmap(mv)(eye).reshape(3 * N, 3 * N)
             return jnp.linalg.solve(A, b.reshape(-1)).reshape(N, 3)
     else:
-        Minv = block_jacobi(p, pr.blocks(u_star, p, project_psd=True))
+        C = None if p.contact is None else ct.blocks(u_star, p.x0, p.cloth, p.contact, p.free)
+        Minv = block_jacobi(p, pr.blocks(u_star, p, project_psd=True), C)
 
         def solve(mv, b):
             return pcg(mv, b, jnp.zeros_like(b), Minv, tol=integ.cg_tol, max_iters=integ.cg_max_iters)[0]

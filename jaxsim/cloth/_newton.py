@@ -9,6 +9,7 @@ import jax.numpy as jnp
 from jax import lax
 
 from .._dataclass import pytree_dataclass
+from . import _contact as ct
 from . import _energy as en
 from . import _problem as pr
 from ._integrators import ImplicitEuler
@@ -52,10 +53,13 @@ class NewtonState:
     fail: jax.Array
 
 
-def block_jacobi(p: pr.StepProblem, A):
-    """``r -> D^{-1} r`` with ``D`` the 3x3 diagonal blocks of ``M/h^2 + sum_s A_s`` (identity on pins)."""
+def block_jacobi(p: pr.StepProblem, A, C=None):
+    """``r -> D^{-1} r`` with ``D`` the 3x3 diagonal blocks of ``M/h^2 + sum_s A_s (+ C)``
+    (identity on pins); ``C (N, 3, 3)`` are per-particle (contact) blocks."""
     c, free = p.cloth, p.free
     D = spring_sum(c, A, signed=False)
+    if C is not None:
+        D = D + C
     D = D + (c.mass / p.h**2)[:, None, None] * jnp.eye(3, dtype=A.dtype)
     D = jnp.where(free[:, :, None] > 0, D, jnp.broadcast_to(jnp.eye(3, dtype=A.dtype), D.shape))
     Dinv = block_inverse(D)
@@ -97,8 +101,12 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
         res = _safe_ratio(jnp.linalg.norm(H @ dx - b.reshape(-1)), jnp.linalg.norm(b))
         return dx.reshape(N, 3), jnp.int32(0), res
 
-    def assembled(A):
-        return en.assemble(c, A) + jnp.diag(jnp.repeat(c.mass, 3) / h**2)
+    def assembled(A, C):
+        H = en.assemble(c, A) + jnp.diag(jnp.repeat(c.mass, 3) / h**2)
+        if C is not None:
+            eye = jnp.eye(N, dtype=C.dtype)
+            H = H + (eye[:, None, :, None] * C[:, :, None, :]).reshape(3 * N, 3 * N)
+        return H
 
     def cg_direction(b, hvp, guess, Minv):
         """PCG on ``v -> hvp(v)`` restricted to the free particles (identity on pins)."""
@@ -109,8 +117,11 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
         dx, k, res, broke = pcg(apply_H, b, guess * free, Minv, tol=integ.cg_tol, max_iters=integ.cg_max_iters)
         return dx, k, jnp.where(jnp.isfinite(res), res, jnp.inf), broke
 
-    def blocks_hvp(A):
-        return lambda v: spring_sum(c, jnp.einsum("sab,sb->sa", A, v[spr_j] - v[spr_i])) + m / h**2 * v
+    def blocks_hvp(A, C):
+        if C is None:
+            return lambda v: spring_sum(c, jnp.einsum("sab,sb->sa", A, v[spr_j] - v[spr_i])) + m / h**2 * v
+        return lambda v: (spring_sum(c, jnp.einsum("sab,sb->sa", A, v[spr_j] - v[spr_i])) + m / h**2 * v
+                          + jnp.einsum("nab,nb->na", C, v))
 
     def newton_direction(u, gvec, guess):
         b = -gvec
@@ -118,35 +129,40 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
             return dense_direction(b, jax.hessian(objective)(u).reshape(3 * N, 3 * N))
         A_exact = pr.blocks(u, p, project_psd=False)
         A_psd = en.psd_projection(A_exact, p.d0 + p.spring_change(u))
+        C = None if p.contact is None else ct.blocks(u, p.x0, c, p.contact, free)  # PSD-projected
         if solver == "dense":
             if projection is True:
-                return dense_direction(b, assembled(A_psd))
+                return dense_direction(b, assembled(A_psd, C))
             # "auto": the exact Hessian; Cholesky of an indefinite one gives non-finite values
-            dx, k, res = dense_direction(b, assembled(A_exact))
+            dx, k, res = dense_direction(b, assembled(A_exact, C))
             return lax.cond(jnp.all(jnp.isfinite(dx)), lambda: (dx, k, res),
-                            lambda: dense_direction(b, assembled(A_psd)))
-        Minv = block_jacobi(p, A_psd)  # an SPD preconditioner in every mode
+                            lambda: dense_direction(b, assembled(A_psd, C)))
+        Minv = block_jacobi(p, A_psd, C)  # an SPD preconditioner in every mode
         if projection is True:
-            return cg_direction(b, blocks_hvp(A_psd), guess, Minv)[:3]
+            return cg_direction(b, blocks_hvp(A_psd, C), guess, Minv)[:3]
         if projection is False:  # the exact Hessian, through the autodiff Hessian-vector product
             return cg_direction(b, lambda v: jax.jvp(grad, (u,), (v,))[1], guess, Minv)[:3]
-        dx, k, res, broke = cg_direction(b, blocks_hvp(A_exact), guess, Minv)
+        dx, k, res, broke = cg_direction(b, blocks_hvp(A_exact, C), guess, Minv)
 
         def projected():
-            dx2, k2, res2, _ = cg_direction(b, blocks_hvp(A_psd), guess, Minv)
+            dx2, k2, res2, _ = cg_direction(b, blocks_hvp(A_psd, C), guess, Minv)
             return dx2, k + k2, res2
 
         return lax.cond(broke, projected, lambda: (dx, k, res))
 
     def line_search(u, gu, gvec, dx):
         if not integ.line_search:
-            return dx, jnp.ones((), dtype), jnp.int32(0), objective(u + dx)
+            a = jnp.ones((), dtype) if p.contact is None else ct.step_bound(u, dx, p.x0, c, free)
+            return dx, a, jnp.int32(0), objective(u + a * dx)
         # keep every step a descent step
         slope = jnp.sum(gvec * dx)
         descent = slope < 0
         dx = jnp.where(descent, dx, -gvec * h**2 / m)
         slope = jnp.where(descent, slope, jnp.sum(gvec * dx))
         slack = 8 * eps * jnp.abs(gu)  # g changes by less than its last bits at convergence
+        a0 = jnp.ones((), dtype)
+        if p.contact is not None:  # never past a collider's surface (IPC's CCD line search)
+            a0 = ct.step_bound(u, dx, p.x0, c, free)
 
         def cond(s):
             a, k, gnew = s
@@ -158,7 +174,7 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
             a = BETA * a
             return a, k + 1, objective(u + a * dx)
 
-        a, k, gnew = lax.while_loop(cond, body, (jnp.ones((), dtype), jnp.int32(0), objective(u + dx)))
+        a, k, gnew = lax.while_loop(cond, body, (a0, jnp.int32(0), objective(u + a0 * dx)))
         return dx, a, k, gnew
 
     def body(s: NewtonState) -> NewtonState:
@@ -178,7 +194,7 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
                            guess=keep(step, jnp.zeros_like(step)), it=s.it + 1, cg=s.cg + k_cg, bt=s.bt + k_ls,
                            alpha=a, res=res, done=done, fail=s.fail | ~ok)
 
-    u0 = jnp.zeros_like(p.x0)
+    u0 = p.start
     g0 = grad(u0) * free
     z = jnp.zeros((), dtype)
     s0 = NewtonState(u=u0, g=objective(u0), grad=g0, rel=pr.relative_gradient(g0, u0, p), guess=h * p.v0 * free,

@@ -23,6 +23,7 @@ import jax.numpy as jnp
 
 from .._dataclass import pytree_dataclass
 from .._dtype import tiny
+from . import _contact as ct
 from . import _energy as en
 from ._scene import Cloth, spring_sum
 
@@ -41,6 +42,8 @@ class StepProblem:
       l0: ``(S,)`` their lengths (m).
       s0: ``(S,)`` stretches ``l0 - L`` (m).
       e0: ``(S, 3)`` frozen unit damping directions ``d0 / l0`` (``None`` when undamped).
+      contact: the lagged contact terms (``_contact.ContactTerms``), ``None`` for a scene
+        without colliders.
     """
 
     cloth: Cloth
@@ -51,10 +54,14 @@ class StepProblem:
     l0: jax.Array
     s0: jax.Array
     e0: jax.Array | None
+    contact: ct.ContactTerms | None = None
 
     @staticmethod
-    def build(cloth: Cloth, x0, v0, h) -> "StepProblem":
-        """Derive the per-step terms (differentiable in every input)."""
+    def build(cloth: Cloth, x0, v0, h, prev_colliders=None) -> "StepProblem":
+        """Derive the per-step terms (differentiable in every input).
+
+        ``prev_colliders``: the colliders at the start of the step when they move (the
+        scene holds those at its end); default static."""
         if not cloth.damped:
             cloth = dataclasses.replace(cloth, damping=jnp.zeros((), x0.dtype))
         d0 = x0[cloth.springs[:, 1]] - x0[cloth.springs[:, 0]]
@@ -63,12 +70,20 @@ class StepProblem:
         if cloth.damped:
             ok = (l0 > 0)[:, None]
             e0 = jnp.where(ok, d0 / jnp.where(ok, l0[:, None], 1.0), 0.0)  # as en.spring_directions
-        return StepProblem(cloth, x0, v0, h, d0, l0, l0 - cloth.rest_length, e0)
+        contact = None
+        if cloth.colliders:
+            contact = ct.build(cloth, x0, h, (~cloth.pinned)[:, None].astype(x0.dtype), prev_colliders)
+        return StepProblem(cloth, x0, v0, h, d0, l0, l0 - cloth.rest_length, e0, contact)
 
     @property
     def free(self) -> jax.Array:
         """``(N, 1)`` 1.0 for free particles, 0.0 for pinned ones (in the scene's dtype)."""
         return (~self.cloth.pinned)[:, None].astype(self.x0.dtype)
+
+    @property
+    def start(self) -> jax.Array:
+        """``(N, 3)`` Newton's first iterate: 0, or the push-out off a moving collider."""
+        return jnp.zeros_like(self.x0) if self.contact is None else self.contact.start
 
     @property
     def d_over_h(self):
@@ -87,14 +102,17 @@ def incremental_potential(u, p: StepProblem):
     r = u - p.h * p.v0
     inertia = 0.5 / p.h**2 * jnp.sum(m * r * r)
     springs = jnp.sum(en.step_element(p.spring_change(u), p.d0, p.l0, p.s0, c.stiffness, p.e0, p.d_over_h))
-    return inertia + springs - jnp.sum(m * c.gravity * u)
+    g = inertia + springs - jnp.sum(m * c.gravity * u)
+    if p.contact is not None:
+        g = g + ct.potential(u, p.x0, c, p.contact, p.free)
+    return g
 
 
 def force_scale(u, p: StepProblem):
     """``(N,)`` size of the terms that make up ``grad g`` at each particle (N).
 
     Inertia ``m/h^2 |u - h v^n|`` plus gravity ``m |g|`` plus the magnitudes of the
-    spring (and damping) forces acting on the particle.  The gradient is judged small
+    spring (and damping) forces and of the contact forces acting on the particle.  The gradient is judged small
     relative to the largest of these, which is what float rounding can resolve.
     """
     c = p.cloth
@@ -104,7 +122,10 @@ def force_scale(u, p: StepProblem):
         t = t + jnp.abs(p.d_over_h * jnp.sum(p.e0 * dd, axis=-1))
     m = c.mass
     inertia = m / p.h**2 * en._length(u - p.h * p.v0)
-    return inertia + m * en._length(c.gravity) + spring_sum(c, t, signed=False)
+    scale = inertia + m * en._length(c.gravity) + spring_sum(c, t, signed=False)
+    if p.contact is not None:
+        scale = scale + ct.force_magnitudes(u, p.x0, c, p.contact, p.free)
+    return scale
 
 
 def relative_gradient(gvec, u, p: StepProblem):

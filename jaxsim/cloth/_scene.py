@@ -11,6 +11,7 @@ import numpy as np
 from .._dataclass import is_concrete, pytree_dataclass, static_field
 from .._dtype import as_float, check_array_dtype, check_float_dtype, default_float
 from .._validate import check_finite, check_int, check_positive, check_real, check_shape
+from ._colliders import check_colliders, count_inside, describe_inside
 
 
 @pytree_dataclass
@@ -33,6 +34,12 @@ class Cloth:
         ``-(s + 1)`` where it is the first, 0 as padding (``D`` = largest degree).  It
         lets the CG operator sum spring forces per particle by gathering instead of a
         scatter-add.
+      colliders: tuple of ``Plane``, ``Sphere`` and ``Capsule`` (``_colliders``); the
+        empty default compiles no contact code at all.
+      contact_gap: ``()`` IPC barrier distance ``dhat`` (m); default 1e-3 times the
+        diagonal of the rest shape's bounding box (``_contact`` module doc).
+      contact_stiffness: ``()`` barrier stiffness per unit mass ``kappa`` (1/s^2), or
+        ``None`` (default) for ``(|g| + dhat/h^2) / dhat`` at step ``h``.
 
     Raises:
       ValueError: on wrong shapes, non-finite values, non-positive masses or rest
@@ -49,6 +56,9 @@ class Cloth:
     damping: jax.Array
     damped: bool = static_field(default=True)
     incidence: jax.Array | None = None
+    colliders: tuple = ()
+    contact_gap: jax.Array | None = None
+    contact_stiffness: jax.Array | None = None
 
     def __post_init__(self):
         leaves = (self.rest, self.springs, self.rest_length, self.stiffness, self.mass, self.pinned,
@@ -98,6 +108,21 @@ class Cloth:
         set_(self, "damping", as_float(d, dtype))
         set_(self, "damped", bool(self.damped) and float(d) != 0.0)
         set_(self, "incidence", jnp.asarray(incidence(np.asarray(springs), N)))
+        set_(self, "colliders", check_colliders(self.colliders, dtype))
+        if self.contact_gap is None:
+            span = np.ptp(np.asarray(rest, np.float64), axis=0)
+            set_(self, "contact_gap", float(np.linalg.norm(span)) * 1e-3 or 1e-3)
+        dhat = check_finite("contact_gap", check_shape("contact_gap", self.contact_gap, ()))
+        check_positive("contact_gap", dhat)
+        set_(self, "contact_gap", as_float(dhat, dtype))
+        if self.contact_stiffness is not None:
+            kappa = check_finite("contact_stiffness", check_shape("contact_stiffness", self.contact_stiffness, ()))
+            check_positive("contact_stiffness", kappa)
+            set_(self, "contact_stiffness", as_float(kappa, dtype))
+        inside = is_concrete(*jax.tree_util.tree_leaves(self.colliders)) and count_inside(
+            self.colliders, self.rest, ~np.asarray(pinned))
+        if inside:
+            raise ValueError(describe_inside(inside, "rest positions"))
 
     @property
     def num_particles(self) -> int:
@@ -199,7 +224,7 @@ def grid_springs(n: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def grid(n: int, spacing: float = 0.2, *, origin=(0.0, 1.5, -1.0), mass: float = 1.0, stiffness: float = 100.0,
-         damping: float = 0.2, gravity: float = 0.3, pins=None, dtype=None) -> Cloth:
+         damping: float = 0.2, gravity: float = 0.3, pins=None, dtype=None, colliders=()) -> Cloth:
     """A square cloth of ``(n+1) x (n+1)`` particles in the plane ``y = origin[1]``.
 
     Particle ``(i, j)`` (id ``i*(n+1) + j``) starts at ``origin + (spacing*i, 0, spacing*j)``;
@@ -215,6 +240,7 @@ def grid(n: int, spacing: float = 0.2, *, origin=(0.0, 1.5, -1.0), mass: float =
       gravity: magnitude (m/s²) of the acceleration ``(0, -gravity, 0)``.
       pins: pinned particle ids; default the two corners of the first row, ``0`` and ``n``.
       dtype: float dtype (default float32, float64 under ``jax_enable_x64``).
+      colliders: ``Plane``/``Sphere``/``Capsule`` tuple (``Cloth.colliders``).
     """
     n = check_int("grid n (cells per side)", n, 1)
     spacing = check_real("spacing", spacing, minimum=0.0, strict=True)
@@ -233,7 +259,7 @@ def grid(n: int, spacing: float = 0.2, *, origin=(0.0, 1.5, -1.0), mass: float =
         rest=np.asarray(rest, dtype), springs=springs, rest_length=np.asarray(L, dtype),
         stiffness=np.full(len(springs), stiffness, dtype), mass=np.full(m * m, mass, dtype),
         pinned=pin_mask(m * m, pins), gravity=np.asarray([0.0, -gravity, 0.0], dtype),
-        damping=np.asarray(damping, dtype),
+        damping=np.asarray(damping, dtype), colliders=colliders,
     )
 
 

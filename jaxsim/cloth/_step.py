@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 
 import jax
@@ -16,6 +17,7 @@ from ._explicit import bounded, explicit
 from ._implicit_diff import solution
 from ._integrators import ExplicitEuler, ImplicitEuler
 from ._newton import newton
+from ._colliders import count_inside, describe_inside
 from ._scene import Cloth, State
 
 
@@ -78,10 +80,10 @@ def _explicit(cloth: Cloth, state: State, dt, integ: ExplicitEuler):
     return State(jnp.where(valid, new.x, state.x), jnp.where(valid, new.v, state.v)), info
 
 
-def _implicit(cloth: Cloth, state: State, dt, integ: ImplicitEuler):
+def _implicit(cloth: Cloth, state: State, dt, integ: ImplicitEuler, prev=None):
     x0, v0, h = state.x, state.v, dt
     valid = valid_inputs(cloth, dt)
-    p = pr.StepProblem.build(cloth, x0, v0, h)
+    p = pr.StepProblem.build(cloth, x0, v0, h, prev)
     rtol = integ.resolved_rtol(x0.dtype)
     s = newton(jax.tree_util.tree_map(lax.stop_gradient, p), integ, rtol)
     u = jnp.where(p.free > 0, solution(integ, s.u, p), 0.0)  # Newton keeps u = 0 on pins
@@ -96,10 +98,10 @@ def _implicit(cloth: Cloth, state: State, dt, integ: ImplicitEuler):
 
 
 @functools.partial(jax.jit, static_argnames=("integrator",))
-def _step(cloth, state, dt, integrator):
+def _step(cloth, state, dt, integrator, prev=None):
     if isinstance(integrator, ExplicitEuler):
         return _explicit(cloth, state, dt, integrator)
-    return _implicit(cloth, state, dt, integrator)
+    return _implicit(cloth, state, dt, integrator, prev)
 
 
 def check_inputs(cloth: Cloth, state: State, dt, integrator) -> State:
@@ -117,6 +119,8 @@ def check_inputs(cloth: Cloth, state: State, dt, integrator) -> State:
         raise TypeError(f"integrator must be ExplicitEuler or ImplicitEuler, got {type(integrator).__name__}")
     if cloth.rest.ndim != 2:
         raise ValueError("this scene is batched (from stack_scenes): use batch_rollout")
+    if cloth.colliders and isinstance(integrator, ExplicitEuler):
+        raise ValueError("colliders need ImplicitEuler: contact is a barrier in its incremental potential")
     N = cloth.num_particles
     out = []
     for name, a in (("state.x", state.x), ("state.v", state.v)):
@@ -127,6 +131,10 @@ def check_inputs(cloth: Cloth, state: State, dt, integrator) -> State:
         elif tuple(a.shape) != (N, 3):
             raise ValueError(f"{name} must have shape ({N}, 3), got {tuple(a.shape)}")
         out.append(jnp.asarray(a, cloth.dtype))
+    if cloth.colliders and is_concrete(state.x) and is_concrete(*jax.tree_util.tree_leaves(cloth.colliders)):
+        inside = count_inside(cloth.colliders, out[0], ~np.asarray(cloth.pinned))
+        if inside:
+            raise ValueError(describe_inside(inside, "state"))
     if is_concrete(dt):
         if np.ndim(dt) != 0:
             raise ValueError(f"dt must be a scalar, got shape {np.shape(dt)}")
@@ -152,19 +160,46 @@ def step(cloth: Cloth, state: State, dt, integrator=ImplicitEuler()) -> tuple[St
 
 
 @functools.partial(jax.jit, static_argnames=("n_steps", "integrator", "checkpoint"))
-def _rollout(cloth, state, dt, n_steps, integrator, checkpoint=False):
-    def f(s, _):
-        s2, info = _step(cloth, s, dt, integrator)
-        return s2, (s2, info)
+def _rollout(cloth, state, dt, n_steps, integrator, checkpoint=False, path=None):
+    def f(carry, cols):
+        s, prev = carry
+        if cols is None:
+            s2, info = _step(cloth, s, dt, integrator)
+        else:
+            s2, info = _step(dataclasses.replace(cloth, colliders=cols), s, dt, integrator, prev)
+        return (s2, cols if cols is not None else prev), (s2, info)
 
     if checkpoint:
         f = jax.checkpoint(f, prevent_cse=False)
-    _, (states, infos) = lax.scan(f, state, None, length=n_steps)
+    prev0 = cloth.colliders if path is not None else None
+    _, (states, infos) = lax.scan(f, (state, prev0), path, length=n_steps)
     return states, infos
 
 
+def check_path(cloth: Cloth, colliders, n_steps: int):
+    """A kinematic collider path: ``cloth.colliders``' structure with a leading ``(T,)`` axis."""
+    if colliders is None:
+        return None
+    if not cloth.colliders:
+        raise ValueError("a collider path needs a scene with colliders (cloth.replace(scene, colliders=...))")
+    want = jax.tree_util.tree_structure(cloth.colliders)
+    got = jax.tree_util.tree_structure(tuple(colliders))
+    if got != want:
+        raise ValueError("colliders (the path) must have the structure of the scene's colliders, with the same "
+                         f"kinds and friction on/off flags: expected {want}, got {got}")
+    leaves = []
+    for a, ref in zip(jax.tree_util.tree_leaves(tuple(colliders)), jax.tree_util.tree_leaves(cloth.colliders)):
+        shape = (n_steps,) + tuple(jnp.shape(ref))
+        if tuple(jnp.shape(a)) != shape:
+            raise ValueError(f"every leaf of the collider path needs shape {shape} (n_steps first), got {jnp.shape(a)}")
+        if is_concrete(a):
+            check_finite("collider path", a)
+        leaves.append(jnp.asarray(a, cloth.dtype))
+    return jax.tree_util.tree_unflatten(want, leaves)
+
+
 def rollout(cloth: Cloth, state: State, dt, n_steps: int, integrator=ImplicitEuler(),
-            checkpoint: bool = False) -> tuple[State, StepInfo]:
+            checkpoint: bool = False, colliders=None) -> tuple[State, StepInfo]:
     """``n_steps`` steps in one ``lax.scan``.
 
     Differentiable end to end: implicit steps carry implicit-function derivatives (one
@@ -175,6 +210,11 @@ def rollout(cloth: Cloth, state: State, dt, n_steps: int, integrator=ImplicitEul
       checkpoint: rematerialise each step in reverse mode (``jax.checkpoint``), so the
         backward pass keeps only the per-step states, ``O(T)`` of them, instead of every
         step's linearisation.  No effect on values or on forward evaluation.
+      colliders: kinematic colliders, or ``None`` (static: the scene's).  A tuple like
+        ``cloth.colliders`` whose leaves have a leading ``(n_steps,)`` axis: entry ``t`` is
+        the colliders at the end of step ``t`` (the scene's are those at time 0).  A
+        particle a collider sweeps over within a step starts that step's Newton solve
+        pushed out to ``dhat / 2`` (``_contact``).
 
     Returns:
       ``(states, infos)`` stacked over a leading ``(n_steps,)`` axis (``states.x`` is
@@ -182,4 +222,6 @@ def rollout(cloth: Cloth, state: State, dt, n_steps: int, integrator=ImplicitEul
     """
     state = check_inputs(cloth, state, dt, integrator)
     n_steps = check_int("n_steps", n_steps, 1)
-    return _rollout(cloth, state, jnp.asarray(dt, cloth.dtype), n_steps, integrator, check_bool("checkpoint", checkpoint))
+    path = check_path(cloth, colliders, n_steps)
+    return _rollout(cloth, state, jnp.asarray(dt, cloth.dtype), n_steps, integrator,
+                    check_bool("checkpoint", checkpoint), path)

@@ -10,6 +10,7 @@ from ._common import new_figure, render_text, save
 from ._ik import animate_tracking, plot_chain, plot_tracking
 from ._plots import plot_error_vs_time
 from ._skeleton import animate_skeleton, plot_skeleton
+from ._surface import animate_surface, plot_surface
 
-__all__ = ["plot_chain", "plot_tracking", "animate_tracking", "plot_skeleton", "animate_skeleton", "plot_cloth", "animate_cloth",
+__all__ = ["plot_chain", "plot_tracking", "animate_tracking", "plot_skeleton", "animate_skeleton", "plot_cloth", "animate_cloth", "plot_surface", "animate_surface",
            "plot_error_vs_time", "render_text", "new_figure", "save"]

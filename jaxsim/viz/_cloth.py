@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._common import check_fps, check_frames, new_figure
+from ._common import check_fps, check_frames, new_figure, world_limits
 
 
 def _segments(springs, x):
@@ -12,16 +12,7 @@ def _segments(springs, x):
 
 
 def _setup(ax, cloth, xs):
-    pts = np.asarray(xs).reshape(-1, 3)
-    lo, hi = pts.min(0), pts.max(0)
-    c, r = 0.5 * (lo + hi), 0.55 * max(np.max(hi - lo), 1e-3)
-    # world y is up: draw (x, z, y) so the cloth hangs down the plot's vertical axis
-    ax.set_xlim(c[0] - r, c[0] + r)
-    ax.set_ylim(c[2] - r, c[2] + r)
-    ax.set_zlim(c[1] - r, c[1] + r)
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("z (m)")
-    ax.set_zlabel("y (m)")
+    world_limits(ax, xs)
 
 
 def _structural(cloth):
