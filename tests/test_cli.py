@@ -98,15 +98,13 @@ def test_bench_runs_only_the_package_benchmarks(tmp_path):
     assert bench_dir() == os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(jaxsim.__file__))), "benchmarks")
 
 
-def test_cli_compilation_cache_is_opt_in(tmp_path, monkeypatch):
+def test_cli_enables_the_compilation_cache(tmp_path, monkeypatch):
     import jax
 
     from jaxsim._cli.cache import enable_compilation_cache
 
-    old = jax.config.jax_compilation_cache_dir
-    monkeypatch.delenv("JAX_COMPILATION_CACHE_DIR", raising=False)
-    assert enable_compilation_cache() is None and jax.config.jax_compilation_cache_dir == old
     monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR", str(tmp_path / "cache"))
+    old = jax.config.jax_compilation_cache_dir
     try:
         assert enable_compilation_cache() == str(tmp_path / "cache")
         assert jax.config.jax_compilation_cache_dir == str(tmp_path / "cache")

@@ -1,11 +1,8 @@
-"""JAX's persistent compilation cache for the command line: opt-in.
+"""JAX's persistent compilation cache for the command line.
 
 Every new shape (batch size, grid size, number of steps) compiles anew, 1 to 3 s for a
-solver; the persistent cache keeps compiled programs on disk so a second run of a command
-reuses them.  It is off unless ``$JAX_COMPILATION_CACHE_DIR`` names a folder: with jaxlib
-0.10.2 on CPU, serialising an executable for the cache (and reading one back) crashed the
-process intermittently (a segmentation fault or an abort inside JAX's cache code, about
-once per few thousand programs in our test runs), and a crash costs more than a compile.
+solver; the cache keeps compiled programs on disk so a second run of a command reuses
+them.  Library users turn it on the same way (README, "Compilation").
 """
 
 from __future__ import annotations
@@ -13,20 +10,17 @@ from __future__ import annotations
 import os
 
 
-def cache_dir() -> str | None:
-    """``$JAX_COMPILATION_CACHE_DIR``, or ``None`` (no cache)."""
-    return os.environ.get("JAX_COMPILATION_CACHE_DIR") or None
+def cache_dir() -> str:
+    """``$JAX_COMPILATION_CACHE_DIR``, else ``~/.cache/jaxsim/jax``."""
+    return os.environ.get("JAX_COMPILATION_CACHE_DIR") or os.path.join(os.path.expanduser("~"), ".cache", "jaxsim", "jax")
 
 
 def enable_compilation_cache() -> str | None:
-    """With ``$JAX_COMPILATION_CACHE_DIR`` set, turn the cache on for programs that took
-    0.5 s or more to compile and return the folder; otherwise (or if the folder cannot be
-    created) leave it off and return ``None``."""
+    """Turn the cache on (programs that took 0.5 s or more to compile); returns the folder,
+    or ``None`` if it cannot be created (the commands then run without it)."""
     import jax
 
     d = cache_dir()
-    if d is None:
-        return None
     try:
         os.makedirs(d, exist_ok=True)
     except OSError:
