@@ -190,9 +190,7 @@ def force_magnitudes(u, x0, cloth, ct: ContactTerms, free):
         if c.frictional:
             t = _tangential(ct, k, u)
             y2 = jnp.sum(t * t, axis=-1)
-            e = ct.eps_h
-            y = jnp.sqrt(jnp.maximum(y2, 0.0))
-            f1 = jnp.where(y < e, y * (2.0 / e - y / (e * e)), 1.0)  # f0'(y), in [0, 1]
+            f1 = 2.0 * jnp.sqrt(y2) * _d(f0, 1)(y2, ct.eps_h)  # d f0 / d|t|, in [0, 1]
             out = out + c.friction * ct.lam[k] * f1
     return out * free[:, 0]
 

@@ -118,10 +118,11 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
         return dx, k, jnp.where(jnp.isfinite(res), res, jnp.inf), broke
 
     def blocks_hvp(A, C):
-        if C is None:
-            return lambda v: spring_sum(c, jnp.einsum("sab,sb->sa", A, v[spr_j] - v[spr_i])) + m / h**2 * v
-        return lambda v: (spring_sum(c, jnp.einsum("sab,sb->sa", A, v[spr_j] - v[spr_i])) + m / h**2 * v
-                          + jnp.einsum("nab,nb->na", C, v))
+        def hvp(v):
+            out = spring_sum(c, jnp.einsum("sab,sb->sa", A, v[spr_j] - v[spr_i])) + m / h**2 * v
+            return out if C is None else out + jnp.einsum("nab,nb->na", C, v)
+
+        return hvp
 
     def newton_direction(u, gvec, guess):
         b = -gvec
@@ -150,9 +151,13 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
 
         return lax.cond(broke, projected, lambda: (dx, k, res))
 
+    def first_step(u, dx):
+        """1, or the largest step that crosses no collider's surface (IPC's CCD line search)."""
+        return jnp.ones((), dtype) if p.contact is None else ct.step_bound(u, dx, p.x0, c, free)
+
     def line_search(u, gu, gvec, dx):
         if not integ.line_search:
-            a = jnp.ones((), dtype) if p.contact is None else ct.step_bound(u, dx, p.x0, c, free)
+            a = first_step(u, dx)
             return dx, a, jnp.int32(0), objective(u + a * dx)
         # keep every step a descent step
         slope = jnp.sum(gvec * dx)
@@ -160,9 +165,7 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
         dx = jnp.where(descent, dx, -gvec * h**2 / m)
         slope = jnp.where(descent, slope, jnp.sum(gvec * dx))
         slack = 8 * eps * jnp.abs(gu)  # g changes by less than its last bits at convergence
-        a0 = jnp.ones((), dtype)
-        if p.contact is not None:  # never past a collider's surface (IPC's CCD line search)
-            a0 = ct.step_bound(u, dx, p.x0, c, free)
+        a0 = first_step(u, dx)
 
         def cond(s):
             a, k, gnew = s

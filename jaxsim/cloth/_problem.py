@@ -28,6 +28,11 @@ from . import _energy as en
 from ._scene import Cloth, spring_sum
 
 
+def free_mask(cloth: Cloth, dtype) -> jax.Array:
+    """``(N, 1)`` 1.0 for free particles, 0.0 for pinned ones."""
+    return (~cloth.pinned)[:, None].astype(dtype)
+
+
 @pytree_dataclass
 class StepProblem:
     """Everything one implicit step depends on, computed once per step.
@@ -72,13 +77,13 @@ class StepProblem:
             e0 = jnp.where(ok, d0 / jnp.where(ok, l0[:, None], 1.0), 0.0)  # as en.spring_directions
         contact = None
         if cloth.colliders:
-            contact = ct.build(cloth, x0, h, (~cloth.pinned)[:, None].astype(x0.dtype), prev_colliders)
+            contact = ct.build(cloth, x0, h, free_mask(cloth, x0.dtype), prev_colliders)
         return StepProblem(cloth, x0, v0, h, d0, l0, l0 - cloth.rest_length, e0, contact)
 
     @property
     def free(self) -> jax.Array:
         """``(N, 1)`` 1.0 for free particles, 0.0 for pinned ones (in the scene's dtype)."""
-        return (~self.cloth.pinned)[:, None].astype(self.x0.dtype)
+        return free_mask(self.cloth, self.x0.dtype)
 
     @property
     def start(self) -> jax.Array:

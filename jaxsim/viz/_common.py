@@ -71,16 +71,22 @@ def render_text(text: str, px: int = 64, weight: str = "bold") -> np.ndarray:
     return 1.0 - rgba[..., 0].astype(np.float64) / 255.0
 
 
-def world_limits(ax, pts):
-    """Cube limits around ``pts (..., 3)`` on 3D axes that draw world ``(x, z, y)`` (y up on
-    the plot's vertical axis); returns the centre and half-width."""
-    pts = np.asarray(pts).reshape(-1, 3)
-    lo, hi = pts.min(0), pts.max(0)
-    c, r = 0.5 * (lo + hi), 0.55 * max(np.max(hi - lo), 1e-3)
-    ax.set_xlim(c[0] - r, c[0] + r)
-    ax.set_ylim(c[2] - r, c[2] + r)
-    ax.set_zlim(c[1] - r, c[1] + r)
+def world_cube(ax, mid, half):
+    """Cube limits ``mid +- half`` on 3D axes that draw world ``(x, z, y)`` (y up on the
+    plot's vertical axis), with axis labels."""
+    ax.set_xlim(mid[0] - half, mid[0] + half)
+    ax.set_ylim(mid[2] - half, mid[2] + half)
+    ax.set_zlim(mid[1] - half, mid[1] + half)
     ax.set_xlabel("x (m)")
     ax.set_ylabel("z (m)")
     ax.set_zlabel("y (m)")
+
+
+def world_limits(ax, pts):
+    """:func:`world_cube` around ``pts (..., 3)`` with a 10% margin; returns the centre and
+    half-width."""
+    pts = np.asarray(pts).reshape(-1, 3)
+    lo, hi = pts.min(0), pts.max(0)
+    c, r = 0.5 * (lo + hi), 0.55 * max(np.max(hi - lo), 1e-3)
+    world_cube(ax, c, r)
     return c, r

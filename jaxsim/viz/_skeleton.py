@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._common import check_fps, check_frames
+from ._common import check_fps, check_frames, world_cube
 
 _VIEWS = {"front": (0, 1), "side": (2, 1)}
 
@@ -66,12 +66,7 @@ def _frame(axes, views, everything):
     mid, half = (lo + hi) / 2, max(float(np.max(hi - lo)) / 2 * 1.1, 1e-3)
     for ax, view in zip(axes, ["3d"] if views == "3d" else views):
         if view == "3d":
-            ax.set_xlim(mid[0] - half, mid[0] + half)
-            ax.set_ylim(mid[2] - half, mid[2] + half)
-            ax.set_zlim(mid[1] - half, mid[1] + half)
-            ax.set_xlabel("x (m)")
-            ax.set_ylabel("z (m)")
-            ax.set_zlabel("y (m)")
+            world_cube(ax, mid, half)
         else:
             i, j = _VIEWS[view]
             ax.set_xlim(mid[i] - half, mid[i] + half)
