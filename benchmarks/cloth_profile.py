@@ -47,7 +47,7 @@ def main() -> None:
         "no-op (x + 1)": (lambda x: x + 1.0, x),
         "objective g(u)": (lambda u: incremental_potential(u, p), u),
         "gradient of g": (lambda u: jax.grad(incremental_potential)(u, p), u),
-        "spring blocks by jax.hessian (+ PSD)": (lambda x: en.element_blocks(c, x, None, project_psd=True), x),
+        "spring blocks, radial form by autodiff (+ PSD)": (lambda x: en.element_blocks(c, x, None, project_psd=True), x),
         "spring blocks, closed form (reference only)": (analytic_blocks, x),
         "CG operator H p (gather)": (lambda p: spring_sum(c, jnp.einsum("sab,sb->sa", A, p[j] - p[i])), x),
         "block-Jacobi setup + apply": (lambda A: block_jacobi(p, A)(x), A),

@@ -102,6 +102,36 @@ def test_analytic_hessian_equals_autodiff(lab):
         np.testing.assert_allclose(A, blocks, rtol=1e-9, atol=1e-9 * np.abs(blocks).max())
 
 
+def test_radial_blocks_equal_element_hessian():
+    """The radial form ``psi'' e e^T + psi'/l (I - e e^T)`` (+ damping) is jax.hessian of the element."""
+    from jaxsim.cloth import _energy as en
+
+    rng = np.random.default_rng(7)
+    S = 64
+    d0 = rng.normal(size=(S, 3))
+    l0 = np.linalg.norm(d0, axis=-1)
+    L = l0 * rng.uniform(0.5, 1.5, S)  # stretched and compressed
+    k = rng.uniform(1.0, 1e3, S)
+    dd = 0.1 * rng.normal(size=(S, 3))
+    e0 = d0 / l0[:, None]
+    for damp in (None, 0.7):
+        args = (d0, l0, l0 - L, k, e0, damp) if damp is not None else (d0, l0, l0 - L, k)
+        hess = jax.hessian(en.step_element)
+        axes = (0, 0, 0, 0, 0, 0, None)[:len(args) + 1]
+        H = jax.vmap(hess, in_axes=axes)(jnp.asarray(dd), *map(jnp.asarray, args))
+        A = en.blocks_from_elements(d0, l0, l0 - L, k, jnp.asarray(dd), *((e0, damp) if damp else ()),
+                                    project_psd=False)
+        np.testing.assert_allclose(A, H, rtol=1e-12, atol=1e-12 * np.abs(H).max())
+        P = en.blocks_from_elements(d0, l0, l0 - L, k, jnp.asarray(dd), *((e0, damp) if damp else ()),
+                                    project_psd=True)
+        assert np.min(np.linalg.eigvalsh(np.asarray(P))) > -1e-9 * np.abs(H).max()
+        assert np.min(np.linalg.eigvalsh(np.asarray(A))) < -1.0  # the compressed ones were indefinite
+    # a zero-length spring: finite blocks (no NaN), only the along-spring law is lost
+    z = en.blocks_from_elements(np.zeros((1, 3)), np.zeros(1), -np.ones(1), np.ones(1), jnp.zeros((1, 3)),
+                                project_psd=False)
+    assert np.all(np.isfinite(np.asarray(z)))
+
+
 def test_projected_blocks_are_psd(lab):
     x = jnp.asarray(perturbed(lab, 0.15, 2))
     A = C.element_blocks(lab, x, project_psd=True)

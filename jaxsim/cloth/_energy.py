@@ -2,7 +2,7 @@
 
 ``energy(cloth, x) = sum_s k_s/2 (|x_j - x_i| - L_s)^2 - sum_i m_i g . x_i`` (springs plus
 gravity).  Forces are ``-jax.grad(energy)``; the implicit step's per-spring Hessian
-blocks are ``jax.hessian`` of the element potential.  ``spring_hessian`` is the lab's
+blocks come from the scalar spring law's derivatives by autodiff (the radial form).  ``spring_hessian`` is the lab's
 analytic Hessian (17.27), kept only to cross-check the autodiff one.
 
 Implicit damping.  The along-spring damping force on particle ``i`` of spring ``(i, j)``
@@ -97,14 +97,58 @@ def spring_directions(cloth: Cloth, x):
     return jnp.where(n > 0, d / jnp.where(n > 0, n, 1.0), 0.0), d
 
 
+def radial_parts(d, s, k):
+    """The spring blocks' two eigenvalues, from the spring law's derivatives by autodiff.
+
+    A spring's potential depends on its length ``l = |d|`` only, so its 3x3 block is
+    ``A = psi''(s) e e^T + psi'(s)/l (I - e e^T)`` with ``e = d / l`` and ``s = l - L``:
+    ``psi'`` and ``psi''`` are scalar ``jax.grad``s of :func:`spring_potential`,
+    elementwise over the springs (no 3x3 Hessian per spring is traced).
+
+    Args:
+      d: ``(S, 3)`` spring vectors (m).
+      s: ``(S,)`` stretches (m).
+      k: ``(S,)`` stiffnesses (N/m).
+
+    Returns:
+      ``(e (S, 3), along (S,), across (S,))``: the unit directions (0 for a zero-length
+      spring), ``psi''`` (N/m) and ``psi'/l`` (N/m, 0 at zero length).
+    """
+    dpsi = jax.grad(spring_potential)
+    d2psi = jax.grad(dpsi)
+    along = jax.vmap(d2psi)(s, k)
+    l = _length(d)
+    ok = l > 0
+    safe = jnp.where(ok, l, 1.0)
+    e = jnp.where(ok[:, None], d / safe[:, None], 0.0)
+    across = jnp.where(ok, jax.vmap(dpsi)(s, k) / safe, 0.0)
+    return e, along, across
+
+
+def radial_blocks(e, along, across, e0=None, d_over_h=None, *, project_psd: bool):
+    """``(S, 3, 3)`` blocks ``along e e^T + across (I - e e^T)`` (+ damping ``(d/h) e0 e0^T``).
+
+    With ``project_psd`` both eigenvalues are clamped at 0: the exact PSD projection of
+    the spring block, since ``e e^T`` and ``I - e e^T`` are orthogonal projectors (a
+    compressed spring has ``across = k (1 - L/l) < 0``).  The damping block is PSD.
+    """
+    if project_psd:
+        along, across = jnp.maximum(along, 0.0), jnp.maximum(across, 0.0)
+    eeT = e[:, :, None] * e[:, None, :]
+    A = (along - across)[:, None, None] * eeT + across[:, None, None] * jnp.eye(3, dtype=e.dtype)
+    if e0 is not None:
+        A = A + d_over_h * (e0[:, :, None] * e0[:, None, :])
+    return A
+
+
 def blocks_from_elements(d0, l0, s0, k, dd, e0=None, d_over_h=None, *, project_psd: bool):
-    """Per-spring 3x3 blocks ``A_s`` by ``jax.hessian`` of :func:`step_element` at ``dd``.
+    """Per-spring 3x3 blocks ``A_s``: the Hessian of :func:`step_element` at ``dd``.
 
     Each element potential depends on ``x_j - x_i`` only, so its 6x6 Hessian is
-    ``[[A, -A], [-A, A]]``.  For a spring ``A = k e e^T + k (1 - L/l)(I - e e^T)``; with
-    ``project_psd`` the perpendicular eigenvalue ``k (1 - L/l)``, negative for a
-    compressed spring, is clamped at 0, which is the exact PSD projection of the block
-    (and of the 6x6 element Hessian).
+    ``[[A, -A], [-A, A]]``; ``A`` comes in the radial form of :func:`radial_parts`
+    (equal to ``jax.hessian`` of the element, tested to 1e-12).  For the quadratic spring
+    ``A = k e e^T + k (1 - L/l)(I - e e^T)``; ``project_psd`` clamps the perpendicular
+    eigenvalue ``k (1 - L/l)`` at 0 (:func:`radial_blocks`).
 
     Args:
       d0, l0, s0, k: ``(S, 3)``, ``(S,)``, ``(S,)``, ``(S,)`` as for :func:`step_element`.
@@ -114,24 +158,8 @@ def blocks_from_elements(d0, l0, s0, k, dd, e0=None, d_over_h=None, *, project_p
     Returns:
       ``(S, 3, 3)`` blocks.
     """
-    hess = jax.hessian(step_element)
-    if e0 is None:
-        A = jax.vmap(hess)(dd, d0, l0, s0, k)
-    else:
-        A = jax.vmap(hess, in_axes=(0, 0, 0, 0, 0, 0, None))(dd, d0, l0, s0, k, e0, d_over_h)
-    return psd_projection(A, d0 + dd) if project_psd else A
-
-
-def psd_projection(A, d):
-    """Blocks ``A (S, 3, 3)`` of springs along ``d (S, 3)`` with the perpendicular
-    eigenvalue ``k (1 - L/l)`` clamped at 0: the exact PSD projection of a spring block
-    (whose other eigenvalue, along ``d``, is ``k >= 0``; damping adds a PSD term)."""
-    n = _length(d)[:, None]
-    e = jnp.where(n > 0, d / jnp.where(n > 0, n, 1.0), 0.0)
-    eAe = jnp.einsum("si,sij,sj->s", e, A, e)
-    lam_perp = 0.5 * (jnp.trace(A, axis1=1, axis2=2) - eAe)
-    P = jnp.eye(3, dtype=A.dtype) - e[:, :, None] * e[:, None, :]
-    return A + jnp.maximum(-lam_perp, 0.0)[:, None, None] * P
+    parts = radial_parts(d0 + dd, s0 + stretch_increment(d0, l0, dd), k)
+    return radial_blocks(*parts, e0, d_over_h, project_psd=project_psd)
 
 
 def element_blocks(cloth: Cloth, x, damping_terms=None, *, project_psd: bool):

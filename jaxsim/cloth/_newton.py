@@ -128,8 +128,9 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
         b = -gvec
         if solver == "dense" and projection is False:
             return dense_direction(b, jax.hessian(objective)(u).reshape(3 * N, 3 * N))
-        A_exact = pr.blocks(u, p, project_psd=False)
-        A_psd = en.psd_projection(A_exact, p.d0 + p.spring_change(u))
+        parts = pr.spring_parts(u, p)
+        A_exact = pr.blocks(u, p, project_psd=False, parts=parts)
+        A_psd = pr.blocks(u, p, project_psd=True, parts=parts)
         C = None if p.contact is None else ct.blocks(u, p.x0, c, p.contact, free)  # PSD-projected
         if solver == "dense":
             if projection is True:

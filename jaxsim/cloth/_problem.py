@@ -142,8 +142,17 @@ def relative_gradient(gvec, u, p: StepProblem):
     return jnp.where(jnp.isnan(rel), jnp.inf, rel)
 
 
-def blocks(u, p: StepProblem, *, project_psd: bool):
-    """``(S, 3, 3)`` Hessian blocks of the spring and damping terms of ``g`` at ``u``."""
-    c = p.cloth
-    return en.blocks_from_elements(p.d0, p.l0, p.s0, c.stiffness, p.spring_change(u), p.e0,
-                                   p.d_over_h if p.e0 is not None else None, project_psd=project_psd)
+def spring_parts(u, p: StepProblem):
+    """The springs' radial parts ``(e, psi'', psi'/l)`` at ``u`` (``_energy.radial_parts``)."""
+    dd = p.spring_change(u)
+    return en.radial_parts(p.d0 + dd, p.s0 + en.stretch_increment(p.d0, p.l0, dd), p.cloth.stiffness)
+
+
+def blocks(u, p: StepProblem, *, project_psd: bool, parts=None):
+    """``(S, 3, 3)`` Hessian blocks of the spring and damping terms of ``g`` at ``u``.
+
+    ``parts``: :func:`spring_parts` at ``u`` when already computed (the exact and the
+    projected blocks share them)."""
+    parts = spring_parts(u, p) if parts is None else parts
+    doh = p.d_over_h if p.e0 is not None else None
+    return en.radial_blocks(*parts, p.e0, doh, project_psd=project_psd)
