@@ -15,15 +15,12 @@ from hypothesis import strategies as st
 from jax.test_util import check_grads
 
 from jaxsim import ik
+from jaxsim._report._humanoid import random_poses
 
 SOLVERS = ("fabrik", "ccd", "lm")
 
 
-def random_rotations(rng, shape, amp=np.pi):
-    ax = rng.normal(size=shape + (3,))
-    ax /= np.linalg.norm(ax, axis=-1, keepdims=True)
-    ang = amp * rng.uniform(size=shape + (1,))
-    return np.concatenate([np.cos(ang / 2), np.sin(ang / 2) * ax], axis=-1)
+random_rotations = random_poses  # unit quaternions, random axis, angle uniform in [0, amp]
 
 
 # ---- a numpy reference for the limit sets (rotation matrices and the shortest arc) ----

@@ -17,16 +17,12 @@ from jaxsim import ik
 from jaxsim.ik import _horn, _quat
 from jaxsim.ik._skeleton import topology
 from jaxsim.ik._tree_solve import solve_tree
+from jaxsim._report._humanoid import random_poses
 
 SOLVERS = ("fabrik", "ccd")
 
 
-def random_rotations(rng, shape, amp=np.pi):
-    """Unit quaternions of random axis and an angle uniform in ``[0, amp]``."""
-    ax = rng.normal(size=shape + (3,))
-    ax /= np.linalg.norm(ax, axis=-1, keepdims=True)
-    ang = amp * rng.uniform(size=shape + (1,))
-    return np.concatenate([np.cos(ang / 2), np.sin(ang / 2) * ax], axis=-1)
+random_rotations = random_poses  # unit quaternions, random axis, angle uniform in [0, amp]
 
 
 def small_tree():

@@ -34,11 +34,14 @@ def stack_scenes(scenes: Sequence[Cloth]) -> Cloth:
             raise ValueError("scenes differ in particle or spring count, dtype or damped flag; they cannot be batched")
     D = max(s.incidence.shape[1] for s in scenes)
     inc = [jnp.pad(s.incidence, ((0, 0), (0, D - s.incidence.shape[1]))) for s in scenes]
-    leaves = {f: jnp.stack([getattr(s, f) for s in scenes]) for f in _LEAVES if f != "incidence"}
+    leaves = {f: jnp.stack([getattr(s, f) for s in scenes]) for f in _LEAVES if f not in ("incidence", "aggregates")}
+    # any partition of the particles gives a valid preconditioner: the first scene's serves all
+    leaves["aggregates"] = jnp.stack([first.aggregates] * len(scenes))
     return _unchecked(first, {**leaves, "incidence": jnp.stack(inc)})
 
 
-_LEAVES = ("rest", "springs", "rest_length", "stiffness", "mass", "pinned", "gravity", "damping", "incidence")
+_LEAVES = ("rest", "springs", "rest_length", "stiffness", "mass", "pinned", "gravity", "damping", "incidence",
+           "aggregates")
 
 
 def _unchecked(like: Cloth, leaves: dict) -> Cloth:
@@ -48,6 +51,7 @@ def _unchecked(like: Cloth, leaves: dict) -> Cloth:
     for f in _LEAVES:
         object.__setattr__(out, f, leaves[f])
     object.__setattr__(out, "damped", like.damped)
+    object.__setattr__(out, "num_aggregates", like.num_aggregates)
     return out
 
 

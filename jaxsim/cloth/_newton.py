@@ -12,6 +12,7 @@ from .._dataclass import pytree_dataclass
 from . import _contact as ct
 from . import _energy as en
 from . import _problem as pr
+from ._coarse import coarse_factor, two_level
 from ._integrators import ImplicitEuler
 from ._linsolve import block_inverse, dense_solve, pcg
 from ._scene import spring_sum
@@ -124,6 +125,17 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
 
         return hvp
 
+    def preconditioner(A_psd, C):
+        jacobi = block_jacobi(p, A_psd, C)
+        if integ.preconditioner == "jacobi":
+            return jacobi
+        diag = jnp.broadcast_to((c.mass / h**2)[:, None, None] * jnp.eye(3, dtype=dtype), (N, 3, 3))
+        diag = diag if C is None else diag + C
+        factor = coarse_factor(c.aggregates, c.num_aggregates, c.springs, A_psd, diag, free[:, 0])
+        hvp = blocks_hvp(A_psd, C)
+        return two_level(c.aggregates, c.num_aggregates, factor, jacobi, lambda v: hvp(v * free) * free + (1.0 - free) * v,
+                         free)
+
     def newton_direction(u, gvec, guess):
         b = -gvec
         if solver == "dense" and projection is False:
@@ -139,7 +151,7 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
             dx, k, res = dense_direction(b, assembled(A_exact, C))
             return lax.cond(jnp.all(jnp.isfinite(dx)), lambda: (dx, k, res),
                             lambda: dense_direction(b, assembled(A_psd, C)))
-        Minv = block_jacobi(p, A_psd, C)  # an SPD preconditioner in every mode
+        Minv = preconditioner(A_psd, C)  # an SPD preconditioner in every mode
         if projection is True:
             return cg_direction(b, blocks_hvp(A_psd, C), guess, Minv)[:3]
         if projection is False:  # the exact Hessian, through the autodiff Hessian-vector product

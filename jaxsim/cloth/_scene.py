@@ -11,6 +11,7 @@ import numpy as np
 from .._dataclass import is_concrete, pytree_dataclass, static_field
 from .._dtype import as_float, check_array_dtype, check_float_dtype, default_float
 from .._validate import check_finite, check_int, check_positive, check_real, check_shape
+from ._coarse import aggregate
 from ._colliders import check_colliders, count_inside, describe_inside
 
 
@@ -34,6 +35,10 @@ class Cloth:
         ``-(s + 1)`` where it is the first, 0 as padding (``D`` = largest degree).  It
         lets the CG operator sum spring forces per particle by gathering instead of a
         scatter-add.
+      aggregates: ``(N,)`` int32, derived from ``rest`` at construction (leave it
+        ``None``): each particle's cell in a coarse voxel grid of at most 64 cells, used
+        by ``ImplicitEuler(preconditioner="two_level")`` (``_coarse``).
+      num_aggregates: static, the number of those cells.
       colliders: tuple of ``Plane``, ``Sphere`` and ``Capsule`` (``_colliders``); the
         empty default compiles no contact code at all.
       contact_gap: ``()`` IPC barrier distance ``dhat`` (m); default 1e-3 times the
@@ -56,6 +61,8 @@ class Cloth:
     damping: jax.Array
     damped: bool = static_field(default=True)
     incidence: jax.Array | None = None
+    aggregates: jax.Array | None = None
+    num_aggregates: int = static_field(default=0)
     colliders: tuple = ()
     contact_gap: jax.Array | None = None
     contact_stiffness: jax.Array | None = None
@@ -108,6 +115,10 @@ class Cloth:
         set_(self, "damping", as_float(d, dtype))
         set_(self, "damped", bool(self.damped) and float(d) != 0.0)
         set_(self, "incidence", jnp.asarray(incidence(np.asarray(springs), N)))
+        if self.aggregates is None or self.num_aggregates == 0 or np.shape(self.aggregates) != (N,):
+            ids, count = aggregate(rest)
+            set_(self, "aggregates", jnp.asarray(ids))
+            set_(self, "num_aggregates", count)
         set_(self, "colliders", check_colliders(self.colliders, dtype))
         if self.contact_gap is None:
             span = np.ptp(np.asarray(rest, np.float64), axis=0)

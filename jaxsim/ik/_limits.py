@@ -216,13 +216,15 @@ def _outside(theta, lo, hi):
     return jnp.where(inside, 0.0, jnp.minimum(jnp.abs(_wrap(lo - theta)), jnp.abs(_wrap(theta - hi))))
 
 
-def _clamp(theta, lo, hi):
+def clamp_range(theta, lo, hi):
+    """``theta`` clamped into ``[lo, hi]`` around the circle (to the nearer end)."""
     inside = (theta >= lo) & (theta <= hi)
     to_lo = jnp.abs(_wrap(lo - theta)) <= jnp.abs(_wrap(theta - hi))
     return jnp.where(inside, theta, jnp.where(to_lo, lo, hi))
 
 
-def _about(theta, a):
+def about(theta, a):
+    """Rotation by ``theta`` about the unit axis ``a`` (component tuples)."""
     half = 0.5 * theta
     return (jnp.cos(half), *_quat.scale(jnp.sin(half), a))
 
@@ -236,16 +238,6 @@ def _safe_atan2(y, x):
 def hinge_angle(q, a):
     """The angle (rad, ``[-pi, pi]``) of ``q``'s twist about the unit axis ``a``."""
     return _twist_angle(_twist(q, a)[1], a)
-
-
-def about(theta, a):
-    """Rotation by ``theta`` about the unit axis ``a`` (component tuples)."""
-    return _about(theta, a)
-
-
-def clamp_range(theta, lo, hi):
-    """``theta`` clamped into ``[lo, hi]`` around the circle (to the nearer end)."""
-    return _clamp(theta, lo, hi)
 
 
 def best_angle(n, a, b, w):
@@ -264,7 +256,7 @@ def project(q, kind, a, lo, hi, swing):
         one, zero = jnp.ones_like(q[0]), jnp.zeros_like(q[0])
         return (one, zero, zero, zero)
     q, t = _twist(q, a)
-    twist = _about(_clamp(_twist_angle(t, a), lo, hi), a)
+    twist = about(clamp_range(_twist_angle(t, a), lo, hi), a)
     if kind == "hinge":
         return twist
     s = _quat.clamp_angle(_quat.mul(q, _quat.conj(t)), swing)

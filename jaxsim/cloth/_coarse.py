@@ -1,0 +1,114 @@
+"""A two-level preconditioner for the Newton step's CG: block Jacobi around a coarse solve.
+
+Block Jacobi (``_newton.block_jacobi``) removes the stiffness of each particle's own
+springs, but not the smooth, cloth-wide modes.  On stiff, light cloth (``k h^2 / m`` in
+the thousands) those modes need hundreds of CG iterations per Newton iteration.
+
+Here the particles are grouped into at most ``MAX_AGGREGATES`` aggregates (cells of a
+voxel grid over the rest shape, ``aggregate``).  The prolongation ``P`` copies an
+aggregate's 3-vector to each of its free particles (piecewise-constant aggregation).
+The coarse matrix is the Galerkin product ``A_c = P^T A P`` of the preconditioning
+operator ``A = M/h^2 + sum_s A_s (+ contact)``, assembled from the same PSD blocks and
+factored by dense Cholesky once per Newton iteration.  ``A_c`` is at most 192 x 192.
+
+One application is a symmetric two-level cycle (Jacobi, coarse correction, Jacobi):
+
+    z = D^-1 r;  z += P A_c^-1 P^T (r - A z);  z += D^-1 (r - A z)
+
+It is symmetric positive definite: ``A_c`` is SPD when the blocks are PSD and the masses
+positive, and block Jacobi is a convergent smoother because ``2D - A = M/h^2 +
+sum_s [[A_s, A_s], [A_s, A_s]]`` is positive definite.  Each application costs two
+extra operator products; it pays where CG needs many iterations (see the README's
+scene C) and not on soft cloth, hence ``ImplicitEuler(preconditioner="jacobi")`` by
+default.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+#: Largest number of aggregates: the coarse matrix is at most ``3 * 64 = 192`` square.
+MAX_AGGREGATES = 64
+
+
+def aggregate(rest, max_aggregates: int = MAX_AGGREGATES) -> tuple[np.ndarray, int]:
+    """Group particles into the cells of the coarsest voxel grid with few enough occupied cells.
+
+    Args:
+      rest: ``(N, 3)`` rest positions (m), concrete.
+      max_aggregates: most aggregates allowed.
+
+    Returns:
+      ``(ids (N,) int32, count)``: each particle's aggregate in ``[0, count)``.
+    """
+    x = np.asarray(rest, np.float64).reshape(-1, 3)
+    N = len(x)
+    if N <= 1:
+        return np.zeros(N, np.int32), 1
+    lo, span = x.min(axis=0), np.ptp(x, axis=0)
+    cell = max(float(span.max()), 1e-300) / (2 * max_aggregates)
+    while True:
+        # the same number of particles per cell along each axis: split each axis evenly
+        n = np.maximum(np.ceil(span / cell), 1)
+        width = np.where(span > 0, span / n, 1.0)
+        keys = np.minimum(np.floor((x - lo) / width), n - 1).astype(np.int64)
+        _, ids = np.unique(keys, axis=0, return_inverse=True)
+        count = int(ids.max()) + 1
+        if count <= max_aggregates:
+            return ids.reshape(-1).astype(np.int32), count
+        cell *= 1.25
+
+
+def _per_aggregate_blocks(ids, count, blocks):
+    """``(count, count, 3, 3)`` zeros with per-particle blocks ``(N, 3, 3)`` summed on the diagonal."""
+    diag = jax.ops.segment_sum(blocks, ids, count)
+    eye = jnp.eye(count, dtype=blocks.dtype)
+    return eye[:, :, None, None] * diag[:, None]
+
+
+def coarse_factor(ids, count: int, springs, A, diag, free):
+    """Cholesky factor of the Galerkin coarse matrix ``P^T A P`` (``3 count`` square).
+
+    Args:
+      ids: ``(N,)`` int32 aggregate of each particle.
+      springs: ``(S, 2)`` spring ends.
+      A: ``(S, 3, 3)`` PSD spring blocks.
+      diag: ``(N, 3, 3)`` per-particle blocks (``M/h^2`` plus contact).
+      free: ``(N,)`` 1.0 for free particles, 0.0 for pinned ones (rows of ``P`` are 0 there).
+    """
+    i, j = springs[:, 0], springs[:, 1]
+    ai, aj = ids[i], ids[j]
+    wi, wj = free[i][:, None, None], free[j][:, None, None]
+    Ac = _per_aggregate_blocks(ids, count, free[:, None, None] * diag)
+    Ac = Ac.at[ai, ai].add(wi * A).at[aj, aj].add(wj * A).at[ai, aj].add(-wi * wj * A).at[aj, ai].add(-wi * wj * A)
+    # an aggregate of pins only has no coarse unknowns: identity there
+    empty = jax.ops.segment_sum(free, ids, count) == 0
+    eye3 = jnp.eye(3, dtype=A.dtype)
+    Ac = Ac + _per_aggregate_blocks(jnp.arange(count), count, empty[:, None, None] * eye3)
+    Ac = Ac.transpose(0, 2, 1, 3).reshape(3 * count, 3 * count)
+    return jax.scipy.linalg.cho_factor(Ac, lower=True)
+
+
+def two_level(ids, count: int, factor, jacobi, operator, free):
+    """The symmetric two-level cycle of the module doc, as ``r (N, 3) -> z (N, 3)``.
+
+    Args:
+      factor: :func:`coarse_factor`.
+      jacobi: ``r -> D^-1 r`` (identity on pins).
+      operator: ``v -> A v`` restricted to the free particles (identity on pins).
+      free: ``(N, 1)`` free mask.
+    """
+
+    def coarse(r):
+        rc = jax.ops.segment_sum(r * free, ids, count).reshape(-1)
+        zc = jax.scipy.linalg.cho_solve(factor, rc).reshape(count, 3)
+        return zc[ids] * free
+
+    def apply(r):
+        z = jacobi(r)
+        z = z + coarse(r - operator(z))
+        return z + jacobi(r - operator(z))
+
+    return apply

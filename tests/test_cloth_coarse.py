@@ -1,0 +1,103 @@
+"""The two-level preconditioner: aggregation, symmetry and definiteness, and the step it serves."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxsim import cloth as C
+from jaxsim.cloth import _coarse, _problem
+from jaxsim.cloth._newton import block_jacobi
+
+
+def stiff_grid(n, k=1e3, dtype=np.float64, pins=None):
+    """Scene C's parameters on an (n+1)^2 grid: total mass 1, g = 9.8."""
+    kw = {} if pins is None else {"pins": pins}
+    return C.grid(n, 0.2, mass=1.0 / (n + 1) ** 2, stiffness=k, gravity=9.8, dtype=dtype, **kw)
+
+
+def test_aggregates_partition_the_particles():
+    for n in (1, 3, 10, 31):
+        c = C.grid(n, 0.2)
+        ids = np.asarray(c.aggregates)
+        assert ids.shape == (c.num_particles,) and c.num_aggregates <= _coarse.MAX_AGGREGATES
+        assert set(ids.tolist()) == set(range(c.num_aggregates))  # every aggregate is used
+    sizes = np.bincount(np.asarray(C.grid(31, 0.2).aggregates))
+    assert sizes.tolist() == [16] * 64  # 4 x 4 blocks on the 32 x 32 grid
+    # a mesh that is not a grid, and a line of particles
+    ids, count = _coarse.aggregate(np.random.default_rng(0).normal(size=(500, 3)), 10)
+    assert count <= 10 and ids.min() == 0 and ids.max() == count - 1
+    ids, count = _coarse.aggregate(np.c_[np.arange(100.0), np.zeros(100), np.zeros(100)], 8)
+    assert count <= 8 and np.all(np.diff(ids) >= 0)
+    assert _coarse.aggregate(np.zeros((1, 3)))[1] == 1
+
+
+@pytest.mark.parametrize("pins", [None, [0, 1, 2, 3, 4, 5, 6, 7]])  # a whole aggregate pinned, too
+def test_two_level_is_symmetric_positive_definite(pins):
+    c = stiff_grid(7, pins=pins)
+    s = C.State.at_rest(c)
+    x0 = s.x + 0.05 * jax.random.normal(jax.random.PRNGKey(0), s.x.shape)
+    p = _problem.StepProblem.build(c, x0, s.v, jnp.asarray(1 / 30))
+    u = jnp.zeros_like(x0)
+    A = _problem.blocks(u, p, project_psd=True)
+    free = p.free
+    N = c.num_particles
+    diag = jnp.broadcast_to((c.mass / p.h**2)[:, None, None] * jnp.eye(3), (N, 3, 3))
+    factor = _coarse.coarse_factor(c.aggregates, c.num_aggregates, c.springs, A, diag, free[:, 0])
+    i, j = c.springs[:, 0], c.springs[:, 1]
+
+    def operator(v):  # the CG operator: identity on pins
+        w = v * free
+        out = C._scene.spring_sum(c, jnp.einsum("sab,sb->sa", A, w[j] - w[i])) + (c.mass / p.h**2)[:, None] * w
+        return out * free + (1.0 - free) * v
+
+    M = _coarse.two_level(c.aggregates, c.num_aggregates, factor, block_jacobi(p, A), operator, free)
+    E = jnp.eye(3 * N).reshape(3 * N, N, 3)
+    Mdense = np.asarray(jax.vmap(M)(E).reshape(3 * N, 3 * N))
+    np.testing.assert_allclose(Mdense, Mdense.T, atol=1e-10 * np.abs(Mdense).max())
+    assert np.linalg.eigvalsh(0.5 * (Mdense + Mdense.T)).min() > 0
+    # a better preconditioner than block Jacobi: a smaller condition number of M A
+    Adense = np.asarray(jax.vmap(operator)(E).reshape(3 * N, 3 * N))
+    Jdense = np.asarray(jax.vmap(block_jacobi(p, A))(E).reshape(3 * N, 3 * N))
+
+    def cond(P):
+        ev = np.linalg.eigvals(P @ Adense).real
+        assert ev.min() > 0
+        return ev.max() / ev.min()
+
+    assert cond(Mdense) < 0.2 * cond(Jdense)
+
+
+@pytest.fixture(scope="module")
+def stiff_steps():
+    c = stiff_grid(11)
+    s = C.State.at_rest(c)
+    out = {}
+    for pc in ("jacobi", "two_level"):
+        integ = C.ImplicitEuler(solver="cg", preconditioner=pc)
+        out[pc] = jax.jit(lambda s, integ=integ: C.rollout(c, s, 1 / 30, 3, integ))(s)
+    return out
+
+
+def test_two_level_step_matches_jacobi_with_fewer_cg_iterations(stiff_steps):
+    (sj, ij), (st, it) = stiff_steps["jacobi"], stiff_steps["two_level"]
+    assert np.all(np.asarray(ij.converged)) and np.all(np.asarray(it.converged))
+    np.testing.assert_allclose(st.x, sj.x, atol=1e-8)
+    assert np.sum(it.cg_iters) < 0.5 * np.sum(ij.cg_iters)
+
+
+def test_preconditioner_setting_is_checked():
+    with pytest.raises(ValueError, match="preconditioner"):
+        C.ImplicitEuler(preconditioner="multigrid")
+    assert hash(C.ImplicitEuler(preconditioner="two_level")) != hash(C.ImplicitEuler())
+
+
+def test_batched_scenes_carry_aggregates():
+    a, b = stiff_grid(5), stiff_grid(5, k=2e3)
+    batch = C.stack_scenes([a, b])
+    assert batch.aggregates.shape == (2, a.num_particles) and batch.num_aggregates == a.num_aggregates
+    integ = C.ImplicitEuler(solver="cg", preconditioner="two_level")
+    states, info = C.batch_rollout(batch, C.State.at_rest(a), 1 / 30, 2, integ)
+    assert np.all(np.asarray(info.converged))
+    alone, _ = C.rollout(b, C.State.at_rest(b), 1 / 30, 2, integ)
+    np.testing.assert_allclose(states.x[1], alone.x, atol=1e-9)
