@@ -122,7 +122,7 @@ def test_batch_rollout_checks_stacked_scenes():
     from jaxsim.cloth._batch import _unchecked
 
     neg = _unchecked(bad, {**{f: getattr(bad, f) for f in ("rest", "springs", "rest_length", "stiffness", "pinned",
-                                                          "gravity", "damping", "incidence")},
+                                                          "gravity", "damping", "incidence", "aggregates")},
                            "mass": bad.mass.at[1, 3].set(-1.0)})
     raises("batched scene mass must be > 0", C.batch_rollout, neg, s0, 1 / 60, 3)
     raises("n_steps must be an int", C.batch_rollout, stacked, s0, 1 / 60, 3.0)

@@ -1,5 +1,7 @@
 """The two-level preconditioner: aggregation, symmetry and definiteness, and the step it serves."""
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -30,6 +32,9 @@ def test_aggregates_partition_the_particles():
     ids, count = _coarse.aggregate(np.c_[np.arange(100.0), np.zeros(100), np.zeros(100)], 8)
     assert count <= 8 and np.all(np.diff(ids) >= 0)
     assert _coarse.aggregate(np.zeros((1, 3)))[1] == 1
+    c = C.grid(5, 0.2)
+    with pytest.raises(ValueError, match="aggregates must be integer ids"):
+        dataclasses.replace(c, aggregates=np.full(c.num_particles, 99), num_aggregates=4)
 
 
 @pytest.mark.parametrize("pins", [None, [0, 1, 2, 3, 4, 5, 6, 7]])  # a whole aggregate pinned, too

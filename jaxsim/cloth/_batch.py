@@ -71,12 +71,14 @@ def check_batched(scenes: Cloth) -> None:
     B, N, _ = scenes.rest.shape
     S = scenes.springs.shape[1]
     shapes = {"rest": (B, N, 3), "springs": (B, S, 2), "rest_length": (B, S), "stiffness": (B, S), "mass": (B, N),
-              "pinned": (B, N), "gravity": (B, 3), "damping": (B,)}
+              "pinned": (B, N), "gravity": (B, 3), "damping": (B,), "aggregates": (B, N)}
     for f, shape in shapes.items():
         a = np.asarray(getattr(scenes, f))
         if a.shape != shape:
             raise ValueError(f"batched scene field {f} must have shape {shape}, got {a.shape}")
-        if f not in ("springs", "pinned"):
+        if f == "aggregates" and (a.min() < 0 or a.max() >= scenes.num_aggregates):
+            raise ValueError(f"batched scene aggregates must lie in [0, {scenes.num_aggregates})")
+        if f not in ("springs", "pinned", "aggregates"):
             check_finite(f"batched scene {f}", a)
     for f, strict in (("rest_length", True), ("mass", True), ("stiffness", False), ("damping", False)):
         check_positive(f"batched scene {f}", np.asarray(getattr(scenes, f)), strict=strict)

@@ -119,6 +119,10 @@ class Cloth:
             ids, count = aggregate(rest)
             set_(self, "aggregates", jnp.asarray(ids))
             set_(self, "num_aggregates", count)
+        ids = np.asarray(self.aggregates)
+        if not np.issubdtype(ids.dtype, np.integer) or ids.min() < 0 or ids.max() >= self.num_aggregates:
+            raise ValueError(f"aggregates must be integer ids in [0, {self.num_aggregates}) (leave them None)")
+        set_(self, "aggregates", jnp.asarray(ids, jnp.int32))
         set_(self, "colliders", check_colliders(self.colliders, dtype))
         if self.contact_gap is None:
             span = np.ptp(np.asarray(rest, np.float64), axis=0)
