@@ -78,9 +78,10 @@ def stiff_steps():
     c = stiff_grid(11)
     s = C.State.at_rest(c)
     out = {}
-    for pc in ("jacobi", "two_level"):
-        integ = C.ImplicitEuler(solver="cg", preconditioner=pc)
-        out[pc] = jax.jit(lambda s, integ=integ: C.rollout(c, s, 1 / 30, 3, integ))(s)
+    for name, integ in (("jacobi", C.ImplicitEuler(solver="cg")),
+                        ("two_level", C.ImplicitEuler(solver="cg", preconditioner="two_level")),
+                        ("fixed cg_tol", C.ImplicitEuler(solver="cg", cg_forcing=0.0))):
+        out[name] = jax.jit(lambda s, integ=integ: C.rollout(c, s, 1 / 30, 3, integ))(s)
     return out
 
 
@@ -91,9 +92,29 @@ def test_two_level_step_matches_jacobi_with_fewer_cg_iterations(stiff_steps):
     assert np.sum(it.cg_iters) < 0.5 * np.sum(ij.cg_iters)
 
 
+def test_forcing_term_saves_cg_iterations_at_equal_results(stiff_steps):
+    (sf, inf_f), (sx, inf_x) = stiff_steps["jacobi"], stiff_steps["fixed cg_tol"]
+    assert np.all(np.asarray(inf_f.converged)) and np.all(np.asarray(inf_x.converged))
+    np.testing.assert_allclose(sf.x, sx.x, atol=1e-8)
+    assert np.sum(inf_f.cg_iters) < 0.9 * np.sum(inf_x.cg_iters)
+    assert np.sum(inf_f.newton_iters) <= np.sum(inf_x.newton_iters) + 1
+
+
+def test_single_newton_iteration_solves_to_cg_tol():
+    c = stiff_grid(5)
+    s = C.State.at_rest(c)
+    one = [C.step(c, s, 1 / 30, C.ImplicitEuler(solver="cg", newton_iters=1, line_search=False, cg_forcing=f))
+           for f in (0.0, 0.5)]
+    np.testing.assert_array_equal(one[0][0].x, one[1][0].x)
+    assert int(one[0][1].cg_iters) == int(one[1][1].cg_iters)
+
+
 def test_preconditioner_setting_is_checked():
     with pytest.raises(ValueError, match="preconditioner"):
         C.ImplicitEuler(preconditioner="multigrid")
+    for bad in (1.0, -0.1, "0.1"):
+        with pytest.raises(ValueError, match="cg_forcing"):
+            C.ImplicitEuler(cg_forcing=bad)
     assert hash(C.ImplicitEuler(preconditioner="two_level")) != hash(C.ImplicitEuler())
 
 

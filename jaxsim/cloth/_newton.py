@@ -109,13 +109,13 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
             H = H + (eye[:, None, :, None] * C[:, :, None, :]).reshape(3 * N, 3 * N)
         return H
 
-    def cg_direction(b, hvp, guess, Minv):
+    def cg_direction(b, hvp, guess, Minv, tol):
         """PCG on ``v -> hvp(v)`` restricted to the free particles (identity on pins)."""
         def apply_H(v):
             v = v * free
             return hvp(v) * free + (1.0 - free) * v
 
-        dx, k, res, broke = pcg(apply_H, b, guess * free, Minv, tol=integ.cg_tol, max_iters=integ.cg_max_iters)
+        dx, k, res, broke = pcg(apply_H, b, guess * free, Minv, tol=tol, max_iters=integ.cg_max_iters)
         return dx, k, jnp.where(jnp.isfinite(res), res, jnp.inf), broke
 
     def blocks_hvp(A, C):
@@ -136,7 +136,7 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
         return two_level(c.aggregates, c.num_aggregates, factor, jacobi, lambda v: hvp(v * free) * free + (1.0 - free) * v,
                          free)
 
-    def newton_direction(u, gvec, guess):
+    def newton_direction(u, gvec, guess, tol):
         b = -gvec
         if solver == "dense" and projection is False:
             return dense_direction(b, jax.hessian(objective)(u).reshape(3 * N, 3 * N))
@@ -153,13 +153,13 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
                             lambda: dense_direction(b, assembled(A_psd, C)))
         Minv = preconditioner(A_psd, C)  # an SPD preconditioner in every mode
         if projection is True:
-            return cg_direction(b, blocks_hvp(A_psd, C), guess, Minv)[:3]
+            return cg_direction(b, blocks_hvp(A_psd, C), guess, Minv, tol)[:3]
         if projection is False:  # the exact Hessian, through the autodiff Hessian-vector product
-            return cg_direction(b, lambda v: jax.jvp(grad, (u,), (v,))[1], guess, Minv)[:3]
-        dx, k, res, broke = cg_direction(b, blocks_hvp(A_exact, C), guess, Minv)
+            return cg_direction(b, lambda v: jax.jvp(grad, (u,), (v,))[1], guess, Minv, tol)[:3]
+        dx, k, res, broke = cg_direction(b, blocks_hvp(A_exact, C), guess, Minv, tol)
 
         def projected():
-            dx2, k2, res2, _ = cg_direction(b, blocks_hvp(A_psd, C), guess, Minv)
+            dx2, k2, res2, _ = cg_direction(b, blocks_hvp(A_psd, C), guess, Minv, tol)
             return dx2, k + k2, res2
 
         return lax.cond(broke, projected, lambda: (dx, k, res))
@@ -194,7 +194,10 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
         return dx, a, k, gnew
 
     def body(s: NewtonState) -> NewtonState:
-        dx, k_cg, res = newton_direction(s.u, s.grad, s.guess)
+        tol = integ.cg_tol
+        if integ.cg_forcing > 0 and integ.newton_iters > 1:  # inexact Newton (Eisenstat & Walker 1996)
+            tol = jnp.maximum(integ.cg_tol, jnp.minimum(integ.cg_forcing, s.rel))
+        dx, k_cg, res = newton_direction(s.u, s.grad, s.guess, tol)
         dx, a, k_ls, g_new = line_search(s.u, s.g, s.grad, dx)
         step = a * dx * free
         u_new = s.u + step
