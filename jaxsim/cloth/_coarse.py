@@ -53,19 +53,13 @@ def aggregate(rest, max_aggregates: int = MAX_AGGREGATES) -> tuple[np.ndarray, i
         # the same number of particles per cell along each axis: split each axis evenly
         n = np.maximum(np.ceil(span / cell), 1)
         width = np.where(span > 0, span / n, 1.0)
-        keys = np.minimum(np.floor((x - lo) / width), n - 1).astype(np.int64)
-        _, ids = np.unique(keys, axis=0, return_inverse=True)
+        cells = np.minimum(np.floor((x - lo) / width), n - 1).astype(np.int64)
+        keys = (cells[:, 0] * int(n[1]) + cells[:, 1]) * int(n[2]) + cells[:, 2]  # one int per cell
+        _, ids = np.unique(keys, return_inverse=True)
         count = int(ids.max()) + 1
         if count <= max_aggregates:
             return ids.reshape(-1).astype(np.int32), count
         cell *= 1.25
-
-
-def _per_aggregate_blocks(ids, count, blocks):
-    """``(count, count, 3, 3)`` zeros with per-particle blocks ``(N, 3, 3)`` summed on the diagonal."""
-    diag = jax.ops.segment_sum(blocks, ids, count)
-    eye = jnp.eye(count, dtype=blocks.dtype)
-    return eye[:, :, None, None] * diag[:, None]
 
 
 def coarse_factor(ids, count: int, springs, A, diag, free):
@@ -81,13 +75,13 @@ def coarse_factor(ids, count: int, springs, A, diag, free):
     i, j = springs[:, 0], springs[:, 1]
     ai, aj = ids[i], ids[j]
     wi, wj = free[i][:, None, None], free[j][:, None, None]
-    Ac = _per_aggregate_blocks(ids, count, free[:, None, None] * diag)
+    per_aggregate = jax.ops.segment_sum(free[:, None, None] * diag, ids, count)  # (count, 3, 3)
+    Ac = jnp.eye(count, dtype=A.dtype)[:, :, None, None] * per_aggregate[:, None]
     Ac = Ac.at[ai, ai].add(wi * A).at[aj, aj].add(wj * A).at[ai, aj].add(-wi * wj * A).at[aj, ai].add(-wi * wj * A)
-    # an aggregate of pins only has no coarse unknowns: identity there
-    empty = jax.ops.segment_sum(free, ids, count) == 0
-    eye3 = jnp.eye(3, dtype=A.dtype)
-    Ac = Ac + _per_aggregate_blocks(jnp.arange(count), count, empty[:, None, None] * eye3)
     Ac = Ac.transpose(0, 2, 1, 3).reshape(3 * count, 3 * count)
+    # an aggregate of pins only has no coarse unknowns: identity there
+    empty = (jax.ops.segment_sum(free, ids, count) == 0).astype(A.dtype)
+    Ac = Ac + jnp.diag(jnp.repeat(empty, 3))
     return jax.scipy.linalg.cho_factor(Ac, lower=True)
 
 

@@ -2,8 +2,9 @@
 
 ``energy(cloth, x) = sum_s k_s/2 (|x_j - x_i| - L_s)^2 - sum_i m_i g . x_i`` (springs plus
 gravity).  Forces are ``-jax.grad(energy)``; the implicit step's per-spring Hessian
-blocks come from the scalar spring law's derivatives by autodiff (the radial form).  ``spring_hessian`` is the lab's
-analytic Hessian (17.27), kept only to cross-check the autodiff one.
+blocks come from the scalar spring law's derivatives by autodiff (the radial form).
+``spring_hessian`` is the lab's analytic Hessian (17.27), kept only to cross-check the
+autodiff one.
 
 Implicit damping.  The along-spring damping force on particle ``i`` of spring ``(i, j)``
 is ``f = d (v_ij . e) e`` with ``v_ij = v_j - v_i``, ``e`` the unit spring direction.

@@ -54,15 +54,19 @@ class NewtonState:
     fail: jax.Array
 
 
+def particle_blocks(p: pr.StepProblem, C=None):
+    """``(N, 3, 3)`` per-particle Hessian blocks: ``M/h^2`` plus the contact blocks ``C``."""
+    c = p.cloth
+    dtype = p.x0.dtype
+    D = jnp.broadcast_to((c.mass / p.h**2)[:, None, None] * jnp.eye(3, dtype=dtype), (c.num_particles, 3, 3))
+    return D if C is None else D + C
+
+
 def block_jacobi(p: pr.StepProblem, A, C=None):
     """``r -> D^{-1} r`` with ``D`` the 3x3 diagonal blocks of ``M/h^2 + sum_s A_s (+ C)``
     (identity on pins); ``C (N, 3, 3)`` are per-particle (contact) blocks."""
-    c, free = p.cloth, p.free
-    D = spring_sum(c, A, signed=False)
-    if C is not None:
-        D = D + C
-    D = D + (c.mass / p.h**2)[:, None, None] * jnp.eye(3, dtype=A.dtype)
-    D = jnp.where(free[:, :, None] > 0, D, jnp.broadcast_to(jnp.eye(3, dtype=A.dtype), D.shape))
+    D = spring_sum(p.cloth, A, signed=False) + particle_blocks(p, C)
+    D = jnp.where(p.free[:, :, None] > 0, D, jnp.broadcast_to(jnp.eye(3, dtype=A.dtype), D.shape))
     Dinv = block_inverse(D)
     return lambda r: jnp.einsum("nab,nb->na", Dinv, r)
 
@@ -109,13 +113,13 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
             H = H + (eye[:, None, :, None] * C[:, :, None, :]).reshape(3 * N, 3 * N)
         return H
 
-    def cg_direction(b, hvp, guess, Minv, tol):
-        """PCG on ``v -> hvp(v)`` restricted to the free particles (identity on pins)."""
-        def apply_H(v):
-            v = v * free
-            return hvp(v) * free + (1.0 - free) * v
+    def restricted(hvp):
+        """``v -> hvp(v)`` on the free particles, the identity on pins."""
+        return lambda v: hvp(v * free) * free + (1.0 - free) * v
 
-        dx, k, res, broke = pcg(apply_H, b, guess * free, Minv, tol=tol, max_iters=integ.cg_max_iters)
+    def cg_direction(b, hvp, guess, Minv, tol):
+        """PCG on ``restricted(hvp)``."""
+        dx, k, res, broke = pcg(restricted(hvp), b, guess * free, Minv, tol=tol, max_iters=integ.cg_max_iters)
         return dx, k, jnp.where(jnp.isfinite(res), res, jnp.inf), broke
 
     def blocks_hvp(A, C):
@@ -129,12 +133,8 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
         jacobi = block_jacobi(p, A_psd, C)
         if integ.preconditioner == "jacobi":
             return jacobi
-        diag = jnp.broadcast_to((c.mass / h**2)[:, None, None] * jnp.eye(3, dtype=dtype), (N, 3, 3))
-        diag = diag if C is None else diag + C
-        factor = coarse_factor(c.aggregates, c.num_aggregates, c.springs, A_psd, diag, free[:, 0])
-        hvp = blocks_hvp(A_psd, C)
-        return two_level(c.aggregates, c.num_aggregates, factor, jacobi, lambda v: hvp(v * free) * free + (1.0 - free) * v,
-                         free)
+        factor = coarse_factor(c.aggregates, c.num_aggregates, c.springs, A_psd, particle_blocks(p, C), free[:, 0])
+        return two_level(c.aggregates, c.num_aggregates, factor, jacobi, restricted(blocks_hvp(A_psd, C)), free)
 
     def newton_direction(u, gvec, guess, tol):
         b = -gvec

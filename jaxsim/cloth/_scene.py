@@ -115,11 +115,11 @@ class Cloth:
         set_(self, "damping", as_float(d, dtype))
         set_(self, "damped", bool(self.damped) and float(d) != 0.0)
         set_(self, "incidence", jnp.asarray(incidence(np.asarray(springs), N)))
-        if self.aggregates is None or self.num_aggregates == 0 or np.shape(self.aggregates) != (N,):
+        ids = self.aggregates
+        if ids is None or self.num_aggregates == 0 or np.shape(ids) != (N,):
             ids, count = aggregate(rest)
-            set_(self, "aggregates", jnp.asarray(ids))
             set_(self, "num_aggregates", count)
-        ids = np.asarray(self.aggregates)
+        ids = np.asarray(ids)
         if not np.issubdtype(ids.dtype, np.integer) or ids.min() < 0 or ids.max() >= self.num_aggregates:
             raise ValueError(f"aggregates must be integer ids in [0, {self.num_aggregates}) (leave them None)")
         set_(self, "aggregates", jnp.asarray(ids, jnp.int32))
