@@ -64,6 +64,49 @@ def test_fabrik_rotations_reproduce_positions(dtype):
         np.testing.assert_allclose(ik.fk(chain, local).positions, P, atol=TOL[dtype] * float(np.abs(P).max()) * 2)
 
 
+def _np_qmul(a, b):
+    aw, av, bw, bv = a[0], a[1:], b[0], b[1:]
+    return np.r_[aw * bw - av @ bv, aw * bv + bw * av + np.cross(av, bv)]
+
+
+def _np_rotate(q, v):
+    return _np_qmul(_np_qmul(q, np.r_[0.0, v]), q * np.r_[1, -1, -1, -1])[1:]
+
+
+def _np_arc(a, b):
+    q = np.r_[np.linalg.norm(a) * np.linalg.norm(b) + a @ b, np.cross(a, b)]
+    return q / np.linalg.norm(q)
+
+
+def test_fabrik_rotation_rebuild_is_the_world_shortest_arc():
+    """The rebuild in the parent's frame equals the world-frame shortest arc, joint by
+    joint: ``g_i = arc(R(g_{i-1} L0_i) o_{i+1}, P_{i+1} - P_i) g_{i-1} L0_i`` and
+    ``L_i = g_{i-1}^{-1} g_i`` (numpy, float64), with a start pose per element and shared."""
+    rng = np.random.default_rng(5)
+    J = 6
+    offsets = rng.normal(size=(J, 3))
+    for shared in (False, True):
+        local0 = random_unit_quaternions(rng, (J,) if shared else (4, J))
+        want = random_unit_quaternions(rng, (4, J))
+        P = np.asarray(ik.fk(ik.Chain(offsets), want).positions)  # positions with the chain's bone lengths
+        L0 = [tuple(jnp.asarray(local0[..., i, k]) for k in range(4)) for i in range(J)]
+        pos = [tuple(jnp.asarray(P[:, i, k]) for k in range(3)) for i in range(J)]
+        L = _fabrik.rotations_from_positions(jnp.asarray(offsets), L0, pos, (4,), unroll=True)
+        L = [tuple(jnp.broadcast_to(c, (4,)) for c in q) for q in L]  # shared entries gain the batch axis
+        got = np.moveaxis(np.asarray(_joints.stack(L)), -1, 0)  # (B, J, 4)
+        for b in range(4):
+            l0 = local0 if shared else local0[b]
+            g_parent = np.r_[1.0, 0, 0, 0]
+            for i in range(J - 1):
+                g = _np_qmul(g_parent, l0[i])
+                g = _np_qmul(_np_arc(_np_rotate(g, offsets[i + 1]), P[b, i + 1] - P[b, i]), g)
+                ref = _np_qmul(g_parent * np.r_[1, -1, -1, -1], g)
+                q = got[b, i]
+                np.testing.assert_allclose(q * np.sign(q @ ref), ref, atol=1e-9)
+                g_parent = g
+            np.testing.assert_allclose(got[b, J - 1], l0[J - 1], atol=1e-12)
+
+
 def test_lab_curves_float64_every_frame_converges():
     arm = ik.lab_arm()
     assert arm.offsets.dtype == np.float64

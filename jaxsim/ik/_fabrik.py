@@ -93,10 +93,13 @@ def straight_towards(root, target, lengths, fallback):
 def rotations_from_positions(offsets, local0, positions, batch_shape, *, unroll: bool):
     """Local rotations whose FK reproduces ``positions``, changed minimally from ``local0``.
 
-    Walks down the chain: joint ``i``'s candidate global frame is its parent's *new*
-    frame times its old local rotation; the shortest arc from the bone that frame
-    predicts to the bone in ``positions`` corrects it.  The end joint (no child bone)
-    keeps its old local rotation.
+    Walks down the chain.  Joint ``i``'s bone points along ``c = R(L0_i) o_{i+1}`` in its
+    parent's frame when it keeps its old local rotation ``L0_i``; it should point along
+    the wanted bone ``P_{i+1} - P_i`` taken into the parent's *new* frame,
+    ``w = R(g_{i-1})^T (P_{i+1} - P_i)``.  The new local rotation is the shortest arc
+    from ``c`` to ``w`` times ``L0_i`` (the shortest arc in world space, seen from the
+    parent).  With a start pose shared by the batch, ``c`` is one vector per joint.
+    The end joint (no child bone) keeps its old local rotation.
 
     Args:
       offsets: ``(J, 3)``.
@@ -111,12 +114,12 @@ def rotations_from_positions(offsets, local0, positions, batch_shape, *, unroll:
 
     def body(i, c):
         L, g_parent = c
-        g = _quat.mul(g_parent, _joints.get(local0, i))
-        bone_now = _quat.rotate(g, _quat.unstack(offsets[i + 1]))
-        bone_want = _quat.sub(_joints.get(positions, i + 1), _joints.get(positions, i))
-        g = _quat.renormalize(_quat.mul(_quat.from_two_vectors(bone_now, bone_want), g))
-        L = _joints.put(L, i, _quat.renormalize(_quat.mul(_quat.conj(g_parent), g)))
-        return L, g
+        l0 = _joints.get(local0, i)
+        bone_rest = _quat.rotate(l0, _quat.unstack(offsets[i + 1]))
+        want = _quat.sub(_joints.get(positions, i + 1), _joints.get(positions, i))
+        want = _quat.rotate(_quat.conj(g_parent), want)
+        local = _quat.renormalize(_quat.mul(_quat.from_two_vectors(bone_rest, want), l0))
+        return _joints.put(L, i, local), _quat.mul(g_parent, local)
 
     L, _ = _joints.loop(0, J - 1, body, (local0, ident), unroll=unroll)
     return L

@@ -97,8 +97,11 @@ def _run(offsets, target, local0, tol, *, kind, max_iters, unroll, trace, early_
             return new, _quat.sqnorm(_quat.sub(_joints.get(new[1], J - 1), tgt))
     else:
         # An unreachable target is answered by the straight line towards it: one sweep,
-        # final.  Those elements start the loop done, with that sweep counted.
-        fallback = _quat.perpendicular(_quat.sub(tgt, root))
+        # final.  Those elements start the loop done, with that sweep counted.  Where two
+        # joints coincide, a bone takes one direction per chain, perpendicular to the rest
+        # chain (as the tree solver's fixed one): a per-target direction would be three
+        # more arrays read by every joint update of the batched sweep.
+        fallback = _quat.perpendicular(_quat.unstack(jnp.sum(offsets[1:], axis=0)))
         straight = straight_towards(root, tgt, lengths, fallback)
         jump = ~reachable & ~done0
         err0 = jnp.where(jump, _quat.safe_norm(_quat.sub(straight[J - 1], tgt)), err0)
