@@ -45,7 +45,7 @@ def main() -> None:
 
     pieces = {
         "no-op (x + 1)": (lambda x: x + 1.0, x),
-        "objective g(u)": (lambda u: incremental_potential(u, p), u),
+        "objective g(w)": (lambda u: incremental_potential(u, p), u),
         "gradient of g": (lambda u: jax.grad(incremental_potential)(u, p), u),
         "spring blocks, radial form by autodiff (+ PSD)": (lambda x: en.element_blocks(c, x, None, project_psd=True), x),
         "spring blocks, closed form (reference only)": (analytic_blocks, x),

@@ -43,8 +43,8 @@ def test_two_level_is_symmetric_positive_definite(pins):
     s = C.State.at_rest(c)
     x0 = s.x + 0.05 * jax.random.normal(jax.random.PRNGKey(0), s.x.shape)
     p = _problem.StepProblem.build(c, x0, s.v, jnp.asarray(1 / 30))
-    u = jnp.zeros_like(x0)
-    A = _problem.blocks(u, p, project_psd=True)
+    w = jnp.zeros_like(x0)  # the step's unknown (any point will do)
+    A = _problem.blocks(w, p, project_psd=True)
     free = p.free
     N = c.num_particles
     factor = _coarse.coarse_factor(c.aggregates, c.num_aggregates, c.springs, A, particle_blocks(p), free[:, 0])

@@ -1,8 +1,9 @@
 """The derivative of an implicit step by the implicit function theorem at its solution.
 
 Nothing is differentiated through the Newton, line-search or CG loops: the converged
-displacement ``u*`` solves ``F(u*, p) = 0`` and ``du*/dp = -J^{-1} dF/dp`` with one
-linear solve with the exact Hessian.
+unknown ``w*`` (the deviation from the prediction of inertia and gravity, ``_problem`` module doc)
+solves ``F(w*, p) = 0`` and ``dw*/dp = -J^{-1} dF/dp`` with one linear solve with the
+exact Hessian.
 """
 
 from __future__ import annotations
@@ -19,33 +20,36 @@ from ._linsolve import pcg
 from ._newton import block_jacobi
 
 
-def stationarity(u, p: pr.StepProblem):
-    """Root function in the free unknowns ``u (N, 3)`` (pinned entries 0).
+def stationarity(w, p: pr.StepProblem):
+    """Root function in the free unknowns ``w (N, 3)``; a pinned particle's entry is
+    ``w + y`` (its displacement, 0 at the solution; ``y`` is ``StepProblem.prediction``).
 
-    ``F(u) = P grad g(P u) + (1 - P) u``: its Jacobian ``P H P + (1 - P)`` is symmetric.
+    ``F(w) = P grad g(P w - (1 - P) y) + (1 - P) (w + y)``: its Jacobian
+    ``P H P + (1 - P)`` is symmetric.
     """
     free = p.free > 0
-    return jnp.where(free, jax.grad(pr.incremental_potential)(jnp.where(free, u, 0.0), p), u)
+    pinned_at = -p.prediction  # a pin's displacement is 0
+    return jnp.where(free, jax.grad(pr.incremental_potential)(jnp.where(free, w, pinned_at), p), w - pinned_at)
 
 
 @functools.partial(jax.custom_jvp, nondiff_argnums=(0,))
-def solution(integ, u_star, p: pr.StepProblem):
-    """Identity on the converged ``u_star (N, 3)``; its derivative is the implicit-function one.
+def solution(integ, w_star, p: pr.StepProblem):
+    """Identity on the converged ``w_star (N, 3)``; its derivative is the implicit-function one.
 
     The tangent solve goes through ``lax.custom_linear_solve`` (symmetric), so reverse
     mode transposes it as the same solve.
     """
-    return u_star
+    return w_star
 
 
 @solution.defjvp
 def _solution_jvp(integ, primals, tangents):
-    u_star, p = primals
+    w_star, p = primals
     _, p_dot = tangents
-    rhs = jax.jvp(lambda q: stationarity(u_star, q), (p,), (p_dot,))[1]
+    rhs = jax.jvp(lambda q: stationarity(w_star, q), (p,), (p_dot,))[1]
 
-    def matvec(w):
-        return jax.jvp(lambda u: stationarity(u, p), (u_star,), (w,))[1]
+    def matvec(t):
+        return jax.jvp(lambda w: stationarity(w, p), (w_star,), (t,))[1]
 
     N = p.cloth.num_particles
     if integ.resolved_solver(N) == "dense":
@@ -54,11 +58,11 @@ def _solution_jvp(integ, primals, tangents):
             A = jax.vmap(mv)(eye).reshape(3 * N, 3 * N)
             return jnp.linalg.solve(A, b.reshape(-1)).reshape(N, 3)
     else:
-        C = None if p.contact is None else ct.blocks(u_star, p.x0, p.cloth, p.contact, p.free)
-        Minv = block_jacobi(p, pr.blocks(u_star, p, project_psd=True), C)
+        C = None if p.contact is None else ct.blocks(p.displacement(w_star), p.x0, p.cloth, p.contact, p.free)
+        Minv = block_jacobi(p, pr.blocks(w_star, p, project_psd=True), C)
 
         def solve(mv, b):
             return pcg(mv, b, jnp.zeros_like(b), Minv, tol=integ.cg_tol, max_iters=integ.cg_max_iters)[0]
 
-    du = lax.custom_linear_solve(matvec, rhs, solve, symmetric=True)
-    return u_star, -du
+    dw = lax.custom_linear_solve(matvec, rhs, solve, symmetric=True)
+    return w_star, -dw

@@ -26,10 +26,12 @@ class NewtonState:
     """The Newton loop's carry.
 
     Attributes:
-      u: ``(N, 3)`` current displacement ``x - x^n`` (m); 0 on pinned particles.
-      g: ``()`` objective ``g(u)`` (J).
-      grad: ``(N, 3)`` ``grad g(u)`` on free particles, 0 on pinned ones (N).
-      rel: ``()`` relative gradient ``|grad|_inf / scale`` at ``u``.
+      w: ``(N, 3)`` current deviation ``x - x^n - y`` from the prediction
+        ``y = h v^n + h^2 g`` (m; ``_problem`` module doc); ``-y`` on pinned particles
+        (they do not move).
+      g: ``()`` objective ``g(w)`` (J).
+      grad: ``(N, 3)`` ``grad g(w)`` on free particles, 0 on pinned ones (N).
+      rel: ``()`` relative gradient ``|grad|_inf / scale`` at ``w``.
       guess: ``(N, 3)`` warm start for the next CG solve (the last step).
       it: ``()`` int32 iterations taken.
       cg: ``()`` int32 CG iterations summed.
@@ -40,7 +42,7 @@ class NewtonState:
       fail: ``()`` bool, a step produced non-finite values (and was not taken).
     """
 
-    u: jax.Array
+    w: jax.Array
     g: jax.Array
     grad: jax.Array
     rel: jax.Array
@@ -77,11 +79,11 @@ def _safe_ratio(num, den):
 
 
 def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
-    """Minimise ``g(., p)`` from ``u = 0``.
+    """Minimise ``g(., p)`` from ``w = -y`` (the displacement 0, the lab's start).
 
     Stops when the lab's step test ``max|alpha dx| / h < tol`` holds and the gradient is
     small (``rel <= rtol``), when the gradient is at rounding level, when the step is
-    at the rounding level of ``u`` (no further progress is possible), or after
+    at the rounding level of ``w`` (no further progress is possible), or after
     ``newton_iters`` iterations.  Runs on ``stop_gradient`` inputs: derivatives come from
     the implicit function theorem instead (``_implicit_diff``).
     """
@@ -136,14 +138,14 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
         factor = coarse_factor(c.aggregates, c.num_aggregates, c.springs, A_psd, particle_blocks(p, C), free[:, 0])
         return two_level(c.aggregates, c.num_aggregates, factor, jacobi, restricted(blocks_hvp(A_psd, C)), free)
 
-    def newton_direction(u, gvec, guess, tol):
+    def newton_direction(w, gvec, guess, tol):
         b = -gvec
         if solver == "dense" and projection is False:
-            return dense_direction(b, jax.hessian(objective)(u).reshape(3 * N, 3 * N))
-        parts = pr.spring_parts(u, p)
-        A_exact = pr.blocks(u, p, project_psd=False, parts=parts)
-        A_psd = pr.blocks(u, p, project_psd=True, parts=parts)
-        C = None if p.contact is None else ct.blocks(u, p.x0, c, p.contact, free)  # PSD-projected
+            return dense_direction(b, jax.hessian(objective)(w).reshape(3 * N, 3 * N))
+        parts = pr.spring_parts(w, p)
+        A_exact = pr.blocks(w, p, project_psd=False, parts=parts)
+        A_psd = pr.blocks(w, p, project_psd=True, parts=parts)
+        C = None if p.contact is None else ct.blocks(p.displacement(w), p.x0, c, p.contact, free)  # PSD-projected
         if solver == "dense":
             if projection is True:
                 return dense_direction(b, assembled(A_psd, C))
@@ -155,7 +157,7 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
         if projection is True:
             return cg_direction(b, blocks_hvp(A_psd, C), guess, Minv, tol)[:3]
         if projection is False:  # the exact Hessian, through the autodiff Hessian-vector product
-            return cg_direction(b, lambda v: jax.jvp(grad, (u,), (v,))[1], guess, Minv, tol)[:3]
+            return cg_direction(b, lambda v: jax.jvp(grad, (w,), (v,))[1], guess, Minv, tol)[:3]
         dx, k, res, broke = cg_direction(b, blocks_hvp(A_exact, C), guess, Minv, tol)
 
         def projected():
@@ -164,59 +166,59 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
 
         return lax.cond(broke, projected, lambda: (dx, k, res))
 
-    def first_step(u, dx):
+    def first_step(w, dx):
         """1, or the largest step that crosses no collider's surface (IPC's CCD line search)."""
-        return jnp.ones((), dtype) if p.contact is None else ct.step_bound(u, dx, p.x0, c, free)
+        return jnp.ones((), dtype) if p.contact is None else ct.step_bound(p.displacement(w), dx, p.x0, c, free)
 
-    def line_search(u, gu, gvec, dx):
+    def line_search(w, gw, gvec, dx):
         if not integ.line_search:
-            a = first_step(u, dx)
-            return dx, a, jnp.int32(0), objective(u + a * dx)
+            a = first_step(w, dx)
+            return dx, a, jnp.int32(0), objective(w + a * dx)
         # keep every step a descent step
         slope = jnp.sum(gvec * dx)
         descent = slope < 0
         dx = jnp.where(descent, dx, -gvec * h**2 / m)
         slope = jnp.where(descent, slope, jnp.sum(gvec * dx))
-        slack = 8 * eps * jnp.abs(gu)  # g changes by less than its last bits at convergence
-        a0 = first_step(u, dx)
+        slack = 8 * eps * jnp.abs(gw)  # g changes by less than its last bits at convergence
+        a0 = first_step(w, dx)
 
         def cond(s):
             a, k, gnew = s
-            armijo = gnew <= gu + GAMMA * a * slope + slack
+            armijo = gnew <= gw + GAMMA * a * slope + slack
             return (k < integ.max_backtracks) & ~(armijo & jnp.isfinite(gnew))
 
         def body(s):
             a, k, _ = s
             a = BETA * a
-            return a, k + 1, objective(u + a * dx)
+            return a, k + 1, objective(w + a * dx)
 
-        a, k, gnew = lax.while_loop(cond, body, (a0, jnp.int32(0), objective(u + a0 * dx)))
+        a, k, gnew = lax.while_loop(cond, body, (a0, jnp.int32(0), objective(w + a0 * dx)))
         return dx, a, k, gnew
 
     def body(s: NewtonState) -> NewtonState:
         tol = integ.cg_tol
         if integ.cg_forcing > 0 and integ.newton_iters > 1:  # inexact Newton (Eisenstat & Walker 1996)
             tol = jnp.maximum(integ.cg_tol, jnp.minimum(integ.cg_forcing, s.rel))
-        dx, k_cg, res = newton_direction(s.u, s.grad, s.guess, tol)
-        dx, a, k_ls, g_new = line_search(s.u, s.g, s.grad, dx)
+        dx, k_cg, res = newton_direction(s.w, s.grad, s.guess, tol)
+        dx, a, k_ls, g_new = line_search(s.w, s.g, s.grad, dx)
         step = a * dx * free
-        u_new = s.u + step
-        gvec = grad(u_new) * free
-        ok = jnp.all(jnp.isfinite(u_new)) & jnp.isfinite(g_new) & jnp.all(jnp.isfinite(gvec))
-        rel = pr.relative_gradient(gvec, u_new, p)
+        w_new = s.w + step
+        gvec = grad(w_new) * free
+        ok = jnp.all(jnp.isfinite(w_new)) & jnp.isfinite(g_new) & jnp.all(jnp.isfinite(gvec))
+        rel = pr.relative_gradient(gvec, w_new, p)
         dmax = jnp.max(jnp.abs(step))
         small_step = dmax / h < integ.tol
-        stalled = dmax <= 4 * eps * jnp.max(jnp.abs(u_new))  # nothing left that the dtype can resolve
+        stalled = dmax <= 4 * eps * jnp.max(jnp.abs(w_new * free))  # nothing left that the dtype can resolve
         done = (small_step & (rel <= rtol)) | stalled | (rel <= 4 * eps) | ~ok
         keep = lambda new, old: jnp.where(ok, new, old)  # noqa: E731
-        return NewtonState(u=keep(u_new, s.u), g=keep(g_new, s.g), grad=keep(gvec, s.grad), rel=keep(rel, s.rel),
+        return NewtonState(w=keep(w_new, s.w), g=keep(g_new, s.g), grad=keep(gvec, s.grad), rel=keep(rel, s.rel),
                            guess=keep(step, jnp.zeros_like(step)), it=s.it + 1, cg=s.cg + k_cg, bt=s.bt + k_ls,
                            alpha=a, res=res, done=done, fail=s.fail | ~ok)
 
-    u0 = p.start
-    g0 = grad(u0) * free
+    w0 = p.start
+    g0 = grad(w0) * free
     z = jnp.zeros((), dtype)
-    s0 = NewtonState(u=u0, g=objective(u0), grad=g0, rel=pr.relative_gradient(g0, u0, p), guess=h * p.v0 * free,
+    s0 = NewtonState(w=w0, g=objective(w0), grad=g0, rel=pr.relative_gradient(g0, w0, p), guess=h * p.v0 * free,
                      it=jnp.int32(0), cg=jnp.int32(0), bt=jnp.int32(0), alpha=z, res=z,
                      done=jnp.array(False), fail=jnp.array(False))
     return lax.while_loop(lambda s: (s.it < integ.newton_iters) & ~s.done, body, s0)

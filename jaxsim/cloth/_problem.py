@@ -1,17 +1,22 @@
-"""One implicit step as a minimisation problem in the step's displacement.
+"""One implicit step as a minimisation problem in the step's deviation from inertia.
 
 Backward Euler's positions minimise the incremental potential (17.19).  Its unknown here
-is the displacement ``u = x - x^n`` rather than ``x``:
+is ``w = x - x^n - y``, the deviation of the step's displacement ``u = x - x^n`` from the
+prediction ``y = h v^n + h^2 g`` of inertia and gravity alone:
 
-    g(u) = 1/(2h^2) |u - h v^n|_M^2 + sum_s psi(s0_s + (|d0_s + du_s| - l0_s)) - sum_i m_i g . u_i + D(u)
+    g(w) = 1/(2h^2) |w|_M^2 + sum_s psi(s0_s + (|d0_s + du_s| - l0_s)) + D(w)
 
-with ``d0 = x^n_j - x^n_i``, ``l0 = |d0|``, ``s0 = l0 - L``, ``du_s = u_j - u_i`` and ``D``
-the frozen-direction damping potential (``_energy`` module doc).  ``g`` differs from
-(17.19) by a constant only, but every term is computed from the motion itself: the
-precision of the solve, the line search and the new velocity ``v = u / h`` is relative
-to the step's motion and not to ``|x|``.  (With ``x`` as the unknown, float32 cannot
-represent a step shorter than ``eps |x|``, about 1e-7 m at the lab's scale; the cloth
-then freezes at small ``dt``.)
+with ``d0 = x^n_j - x^n_i``, ``l0 = |d0|``, ``s0 = l0 - L``, the spring's change
+``du_s = h (v^n_j - v^n_i) + (w_j - w_i)`` and ``D`` the frozen-direction damping potential
+(``_energy`` module doc); gravity is in ``y`` (``1/(2h^2)|u - h v^n|^2_M - m g . u`` is
+``1/(2h^2)|w|^2_M`` plus a constant).  ``g`` differs from (17.19) by a constant only, but
+every term is computed from the motion itself, and the unknown is the part of the motion
+that the springs (and colliders) decide.  The precision of the solve is relative to ``|w|``: float32 resolves a
+spring's change to about ``eps |w|`` rather than ``eps |u|`` (with stiff springs the
+difference decides whether the gradient test can be met at all), and the new velocity
+is ``v = v^n + h g + w / h``.  (With ``x`` as the unknown, float32 cannot represent a step
+shorter than ``eps |x|``, about 1e-7 m at the lab's scale; the cloth then freezes at
+small ``dt``.)
 """
 
 from __future__ import annotations
@@ -46,6 +51,7 @@ class StepProblem:
       d0: ``(S, 3)`` spring vectors ``x^n_j - x^n_i`` (m).
       l0: ``(S,)`` their lengths (m).
       s0: ``(S,)`` stretches ``l0 - L`` (m).
+      dv: ``(S, 3)`` the springs' change under the inertial prediction, ``h (v^n_j - v^n_i)`` (m).
       e0: ``(S, 3)`` frozen unit damping directions ``d0 / l0`` (``None`` when undamped).
       contact: the lagged contact terms (``_contact.ContactTerms``), ``None`` for a scene
         without colliders.
@@ -58,6 +64,7 @@ class StepProblem:
     d0: jax.Array
     l0: jax.Array
     s0: jax.Array
+    dv: jax.Array
     e0: jax.Array | None
     contact: ct.ContactTerms | None = None
 
@@ -69,7 +76,8 @@ class StepProblem:
         scene holds those at its end); default static."""
         if not cloth.damped:
             cloth = dataclasses.replace(cloth, damping=jnp.zeros((), x0.dtype))
-        d0 = x0[cloth.springs[:, 1]] - x0[cloth.springs[:, 0]]
+        i, j = cloth.springs[:, 0], cloth.springs[:, 1]
+        d0 = x0[j] - x0[i]
         l0 = en._length(d0)
         e0 = None
         if cloth.damped:
@@ -78,7 +86,7 @@ class StepProblem:
         contact = None
         if cloth.colliders:
             contact = ct.build(cloth, x0, h, free_mask(cloth, x0.dtype), prev_colliders)
-        return StepProblem(cloth, x0, v0, h, d0, l0, l0 - cloth.rest_length, e0, contact)
+        return StepProblem(cloth, x0, v0, h, d0, l0, l0 - cloth.rest_length, h * (v0[j] - v0[i]), e0, contact)
 
     @property
     def free(self) -> jax.Array:
@@ -87,72 +95,82 @@ class StepProblem:
 
     @property
     def start(self) -> jax.Array:
-        """``(N, 3)`` Newton's first iterate: 0, or the push-out off a moving collider."""
-        return jnp.zeros_like(self.x0) if self.contact is None else self.contact.start
+        """``(N, 3)`` Newton's first iterate ``w``: the displacement 0 (the lab's linearisation
+        point), or the push-out off a moving collider."""
+        u = jnp.zeros_like(self.x0) if self.contact is None else self.contact.start
+        return u - self.prediction
+
+    @property
+    def prediction(self) -> jax.Array:
+        """``(N, 3)`` the displacement ``y = h v^n + h^2 g`` under inertia and gravity alone (m)."""
+        return self.h * self.v0 + self.h**2 * self.cloth.gravity
+
+    def displacement(self, w):
+        """``u = y + w`` (N, 3) (m)."""
+        return self.prediction + w
 
     @property
     def d_over_h(self):
         return self.cloth.damping / self.h
 
-    def spring_change(self, u):
-        """``(S, 3)`` change ``u_j - u_i`` of every spring vector."""
+    def spring_change(self, w):
+        """``(S, 3)`` change ``h (v^n_j - v^n_i) + (w_j - w_i)`` of every spring vector (m)."""
         i, j = self.cloth.springs[:, 0], self.cloth.springs[:, 1]
-        return u[j] - u[i]
+        return self.dv + (w[j] - w[i])
 
 
-def incremental_potential(u, p: StepProblem):
-    """``g(u)`` of the module doc (J), for a displacement ``u (N, 3)`` (m)."""
+def incremental_potential(w, p: StepProblem):
+    """``g(w)`` of the module doc (J), for a deviation ``w (N, 3)`` (m) from the prediction."""
     c = p.cloth
     m = c.mass[:, None]
-    r = u - p.h * p.v0
-    inertia = 0.5 / p.h**2 * jnp.sum(m * r * r)
-    springs = jnp.sum(en.step_element(p.spring_change(u), p.d0, p.l0, p.s0, c.stiffness, p.e0, p.d_over_h))
-    g = inertia + springs - jnp.sum(m * c.gravity * u)
+    inertia = 0.5 / p.h**2 * jnp.sum(m * w * w)  # with gravity's work
+    springs = jnp.sum(en.step_element(p.spring_change(w), p.d0, p.l0, p.s0, c.stiffness, p.e0, p.d_over_h))
+    g = inertia + springs
     if p.contact is not None:
-        g = g + ct.potential(u, p.x0, c, p.contact, p.free)
+        g = g + ct.potential(p.displacement(w), p.x0, c, p.contact, p.free)
     return g
 
 
-def force_scale(u, p: StepProblem):
+def force_scale(w, p: StepProblem):
     """``(N,)`` size of the terms that make up ``grad g`` at each particle (N).
 
-    Inertia ``m/h^2 |u - h v^n|`` plus gravity ``m |g|`` plus the magnitudes of the
+    Inertia ``m/h^2 |u - h v^n|`` (``u - h v^n = w + h^2 g``) plus gravity ``m |g|`` plus the magnitudes of the
     spring (and damping) forces and of the contact forces acting on the particle.  The gradient is judged small
     relative to the largest of these, which is what float rounding can resolve.
     """
     c = p.cloth
-    dd = p.spring_change(u)
+    dd = p.spring_change(w)
     t = jnp.abs(c.stiffness * (p.s0 + en.stretch_increment(p.d0, p.l0, dd)))
     if p.e0 is not None:
         t = t + jnp.abs(p.d_over_h * jnp.sum(p.e0 * dd, axis=-1))
     m = c.mass
-    inertia = m / p.h**2 * en._length(u - p.h * p.v0)
+    inertia = m / p.h**2 * en._length(w + p.h**2 * c.gravity)
     scale = inertia + m * en._length(c.gravity) + spring_sum(c, t, signed=False)
     if p.contact is not None:
-        scale = scale + ct.force_magnitudes(u, p.x0, c, p.contact, p.free)
+        scale = scale + ct.force_magnitudes(p.displacement(w), p.x0, c, p.contact, p.free)
     return scale
 
 
-def relative_gradient(gvec, u, p: StepProblem):
+def relative_gradient(gvec, w, p: StepProblem):
     """``max_i |grad_i g| / max_i scale_i`` over free particles (dimensionless, never NaN)."""
     free = p.free[:, 0] > 0
     gmax = jnp.max(jnp.where(free, en._length(gvec), 0.0))
-    smax = jnp.max(jnp.where(free, force_scale(u, p), 0.0))
-    rel = gmax / jnp.maximum(smax, tiny(u.dtype))
+    smax = jnp.max(jnp.where(free, force_scale(w, p), 0.0))
+    rel = gmax / jnp.maximum(smax, tiny(w.dtype))
     return jnp.where(jnp.isnan(rel), jnp.inf, rel)
 
 
-def spring_parts(u, p: StepProblem):
-    """The springs' radial parts ``(e, psi'', psi'/l)`` at ``u`` (``_energy.radial_parts``)."""
-    dd = p.spring_change(u)
+def spring_parts(w, p: StepProblem):
+    """The springs' radial parts ``(e, psi'', psi'/l)`` at ``w`` (``_energy.radial_parts``)."""
+    dd = p.spring_change(w)
     return en.radial_parts(p.d0 + dd, p.s0 + en.stretch_increment(p.d0, p.l0, dd), p.cloth.stiffness)
 
 
-def blocks(u, p: StepProblem, *, project_psd: bool, parts=None):
-    """``(S, 3, 3)`` Hessian blocks of the spring and damping terms of ``g`` at ``u``.
+def blocks(w, p: StepProblem, *, project_psd: bool, parts=None):
+    """``(S, 3, 3)`` Hessian blocks of the spring and damping terms of ``g`` at ``w``.
 
     ``parts``: :func:`spring_parts` at ``u`` when already computed (the exact and the
     projected blocks share them)."""
-    parts = spring_parts(u, p) if parts is None else parts
+    parts = spring_parts(w, p) if parts is None else parts
     doh = p.d_over_h if p.e0 is not None else None
     return en.radial_blocks(*parts, p.e0, doh, project_psd=project_psd)

@@ -86,8 +86,11 @@ def _implicit(cloth: Cloth, state: State, dt, integ: ImplicitEuler, prev=None):
     p = pr.StepProblem.build(cloth, x0, v0, h, prev)
     rtol = integ.resolved_rtol(x0.dtype)
     s = newton(jax.tree_util.tree_map(lax.stop_gradient, p), integ, rtol)
-    u = jnp.where(p.free > 0, solution(integ, s.u, p), 0.0)  # Newton keeps u = 0 on pins
-    x, v = x0 + u, u / h  # the velocity from the displacement, not from rounded positions
+    w = solution(integ, s.w, p)
+    free = p.free > 0
+    u = jnp.where(free, p.displacement(w), 0.0)  # pins do not move
+    # the velocity from the deviation, not from rounded positions or displacements
+    x, v = x0 + u, jnp.where(free, v0 + cloth.gravity * h + w / h, 0.0)
     ok = valid & ~s.fail & bounded(cloth, x, v)
     x, v = jnp.where(ok, x, x0), jnp.where(ok, v, v0)
     gnorm = jnp.linalg.norm(s.grad)
