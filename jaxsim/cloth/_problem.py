@@ -11,10 +11,10 @@ with ``d0 = x^n_j - x^n_i``, ``l0 = |d0|``, ``s0 = l0 - L``, the spring's change
 (``_energy`` module doc); gravity is in ``y`` (``1/(2h^2)|u - h v^n|^2_M - m g . u`` is
 ``1/(2h^2)|w|^2_M`` plus a constant).  ``g`` differs from (17.19) by a constant only, but
 every term is computed from the motion itself, and the unknown is the part of the motion
-that the springs (and colliders) decide.  The precision of the solve is relative to ``|w|``: float32 resolves a
-spring's change to about ``eps |w|`` rather than ``eps |u|`` (with stiff springs the
-difference decides whether the gradient test can be met at all), and the new velocity
-is ``v = v^n + h g + w / h``.  (With ``x`` as the unknown, float32 cannot represent a step
+that the springs (and colliders) decide.  The precision of the solve is relative to
+``|w|``: float32 resolves a spring's change to about ``eps |w|`` rather than ``eps |u|``
+(with stiff springs the difference decides whether the gradient test can be met at all),
+and the new velocity is ``v = v^n + h g + w / h``.  (With ``x`` as the unknown, float32 cannot represent a step
 shorter than ``eps |x|``, about 1e-7 m at the lab's scale; the cloth then freezes at
 small ``dt``.)
 """
@@ -109,6 +109,11 @@ class StepProblem:
         """``u = y + w`` (N, 3) (m)."""
         return self.prediction + w
 
+    def velocity(self, w):
+        """``v = u / h = v^n + h g + w / h`` (N, 3) (m/s), from the deviation itself rather
+        than from a rounded displacement."""
+        return self.v0 + self.h * self.cloth.gravity + w / self.h
+
     @property
     def d_over_h(self):
         return self.cloth.damping / self.h
@@ -134,9 +139,10 @@ def incremental_potential(w, p: StepProblem):
 def force_scale(w, p: StepProblem):
     """``(N,)`` size of the terms that make up ``grad g`` at each particle (N).
 
-    Inertia ``m/h^2 |u - h v^n|`` (``u - h v^n = w + h^2 g``) plus gravity ``m |g|`` plus the magnitudes of the
-    spring (and damping) forces and of the contact forces acting on the particle.  The gradient is judged small
-    relative to the largest of these, which is what float rounding can resolve.
+    Inertia ``m/h^2 |u - h v^n|`` (``u - h v^n = w + h^2 g``) plus gravity ``m |g|`` plus
+    the magnitudes of the spring (and damping) forces and of the contact forces acting on
+    the particle.  The gradient is judged small relative to the largest of these, which is
+    what float rounding can resolve.
     """
     c = p.cloth
     dd = p.spring_change(w)

@@ -89,8 +89,7 @@ def _implicit(cloth: Cloth, state: State, dt, integ: ImplicitEuler, prev=None):
     w = solution(integ, s.w, p)
     free = p.free > 0
     u = jnp.where(free, p.displacement(w), 0.0)  # pins do not move
-    # the velocity from the deviation, not from rounded positions or displacements
-    x, v = x0 + u, jnp.where(free, v0 + cloth.gravity * h + w / h, 0.0)
+    x, v = x0 + u, jnp.where(free, p.velocity(w), 0.0)
     ok = valid & ~s.fail & bounded(cloth, x, v)
     x, v = jnp.where(ok, x, x0), jnp.where(ok, v, v0)
     gnorm = jnp.linalg.norm(s.grad)
