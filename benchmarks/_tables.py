@@ -63,13 +63,15 @@ def stability_table():
 
 def cloth_table():
     d = load("cloth_step")
-    out = ["| scene | method | dtype | ms/step | Newton | CG | max error vs ref (m) | speed-up vs scipy |", "|---|---|---|---|---|---|---|---|"]
+    out = ["| scene | method | dtype | ms/step | Newton | CG | converged | max error vs ref (m) | speed-up vs scipy |",
+           "|---|---|---|---|---|---|---|---|---|"]
     for r in d["rows"]:
         if r["method"].startswith("scipy"):
-            out.append(f"| {r['scene']} | {r['method']} | float64 | {r['ms_per_step']:.2f} | {r['newton']} | | {r['error_vs_ref']:.1e} | 1 |")
+            out.append(f"| {r['scene']} | {r['method']} | float64 | {r['ms_per_step']:.2f} | {r['newton']} | | | "
+                       f"{r['error_vs_ref']:.1e} | 1 |")
         else:
             out.append(f"| {r['scene']} | {r['method']} | {r['dtype']} | {r['ms_per_step']:.3f} | {r['newton']} | {r['cg_iters']} | "
-                       f"{r['error_vs_ref']:.1e} | {r['speedup_vs_scipy']:.1f} |")
+                       f"{'yes' if r['converged'] else 'no'} | {r['error_vs_ref']:.1e} | {r['speedup_vs_scipy']:.1f} |")
     return "\n".join(out)
 
 

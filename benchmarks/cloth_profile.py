@@ -2,7 +2,11 @@
 
 Scene: the B 32x32 grid (lab parameters), float64, positions perturbed by 1 cm.  Each piece
 is jit-compiled alone and timed warm (median of repeats, compile apart), next to the
-baseline of an elementwise no-op on the same array.
+baseline of an elementwise no-op on the same array.  The CG operator ``H p`` is timed both
+ways: by the grid operator (shifted slices, what a grid scene uses) and by the general one
+(gathers through ``Cloth.incidence``, the same scene with its springs in another order), each
+alone and as 50 applications inside one ``fori_loop`` (per application, without the
+dispatch cost).
 
 Run: ``python benchmarks/cloth_profile.py``; writes ``benchmarks/results/cloth_profile.json``.
 """
@@ -16,13 +20,15 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from _common import time_call, write  # noqa: E402
 
 from jaxsim import cloth as C  # noqa: E402
 from jaxsim.cloth import _energy as en  # noqa: E402
-from jaxsim.cloth._scene import spring_sum  # noqa: E402
+from jaxsim.cloth._scene import spring_diff, spring_sum  # noqa: E402
+from jaxsim.cloth._vec import matvec  # noqa: E402
 from jaxsim.cloth._newton import block_jacobi  # noqa: E402
 from jaxsim.cloth._problem import StepProblem, incremental_potential  # noqa: E402
 
@@ -34,6 +40,9 @@ def main() -> None:
     p = StepProblem.build(c, s.x, s.v, jnp.asarray(1 / 60))
     u = x - s.x  # the step's unknown is the displacement
     i, j = c.springs[:, 0], c.springs[:, 1]
+    perm = np.random.default_rng(0).permutation(c.num_springs)  # no grid layout: the general operator
+    g = C.replace(c, springs=np.asarray(c.springs)[perm], rest_length=c.rest_length[perm], stiffness=c.stiffness[perm])
+    assert c.stencil is not None and g.stencil is None
     A = en.element_blocks(c, x, None, project_psd=True)
 
     def analytic_blocks(x):
@@ -49,7 +58,8 @@ def main() -> None:
         "gradient of g": (lambda u: jax.grad(incremental_potential)(u, p), u),
         "spring blocks, radial form by autodiff (+ PSD)": (lambda x: en.element_blocks(c, x, None, project_psd=True), x),
         "spring blocks, closed form (reference only)": (analytic_blocks, x),
-        "CG operator H p (gather)": (lambda p: spring_sum(c, jnp.einsum("sab,sb->sa", A, p[j] - p[i])), x),
+        "CG operator H p (grid operator)": (lambda p: spring_sum(c, matvec(A, spring_diff(c, p))), x),
+        "CG operator H p (general, gathers)": (lambda p: spring_sum(g, matvec(A[perm], spring_diff(g, p))), x),
         "block-Jacobi setup + apply": (lambda A: block_jacobi(p, A)(x), A),
     }
     rows = []
@@ -57,6 +67,12 @@ def main() -> None:
         t = time_call(jax.jit(f), arg, repeats=50)
         rows.append({"piece": name, "ms": 1e3 * t["run_s"], "compile_s": t["compile_s"]})
         print(f"{name:45s} {1e3 * t['run_s']:.3f} ms", flush=True)
+    for name in ("CG operator H p (grid operator)", "CG operator H p (general, gathers)"):
+        f = pieces[name][0]
+        loop = jax.jit(lambda v, f=f: jax.lax.fori_loop(0, 50, lambda k, v: v + 1e-6 * f(v), v))
+        t = time_call(loop, x, repeats=20)
+        rows.append({"piece": name + ", in a loop", "ms": 1e3 * t["run_s"] / 50, "compile_s": t["compile_s"]})
+        print(f"{name + ', in a loop':45s} {1e3 * t['run_s'] / 50:.3f} ms", flush=True)
     write("cloth_profile", {"scene": "B 32x32 float64", "rows": rows})
 
 

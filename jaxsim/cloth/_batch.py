@@ -37,14 +37,16 @@ def stack_scenes(scenes: Sequence[Cloth]) -> Cloth:
     leaves = {f: jnp.stack([getattr(s, f) for s in scenes]) for f in _LEAVES if f not in ("incidence", "aggregates")}
     # any partition of the particles gives a valid preconditioner: the first scene's serves all
     leaves["aggregates"] = jnp.stack([first.aggregates] * len(scenes))
-    return _unchecked(first, {**leaves, "incidence": jnp.stack(inc)})
+    # the grid operator when every scene has the same grid layout, else the general one
+    stencil = first.stencil if all(s.stencil == first.stencil for s in scenes) else None
+    return _unchecked(first, {**leaves, "incidence": jnp.stack(inc)}, stencil)
 
 
 _LEAVES = ("rest", "springs", "rest_length", "stiffness", "mass", "pinned", "gravity", "damping", "incidence",
            "aggregates")
 
 
-def _unchecked(like: Cloth, leaves: dict) -> Cloth:
+def _unchecked(like: Cloth, leaves: dict, stencil=None) -> Cloth:
     """A ``Cloth`` with ``leaves`` and ``like``'s static flag, skipping the per-scene shape
     checks (batched leaves carry a leading scene axis)."""
     out = object.__new__(Cloth)
@@ -52,6 +54,7 @@ def _unchecked(like: Cloth, leaves: dict) -> Cloth:
         object.__setattr__(out, f, leaves[f])
     object.__setattr__(out, "damped", like.damped)
     object.__setattr__(out, "num_aggregates", like.num_aggregates)
+    object.__setattr__(out, "stencil", stencil)
     return out
 
 
@@ -130,7 +133,7 @@ def batch_rollout(scenes, state: State, dt, n_steps: int, integrator=ImplicitEul
     pad = 0
     if mesh is not None:
         leaves, pad = _sharding.shard_leading({f: getattr(scenes, f) for f in _LEAVES}, mesh, B)
-        scenes = _unchecked(scenes, leaves)
+        scenes = _unchecked(scenes, leaves, scenes.stencil)
         if state_batched:
             state, _ = _sharding.shard_leading(state, mesh, B)
     out = _batched(scenes, state, jnp.asarray(dt, scenes.dtype), n_steps, integrator, bool(checkpoint), state_batched)

@@ -27,11 +27,8 @@ import numpy as np
 from .._dataclass import is_concrete, pytree_dataclass, static_field
 from .._dtype import tiny
 from .._validate import check_finite, check_positive
+from ._vec import dot as _dot
 from ._vec import length, stretch_increment
-
-
-def _dot(a, b):
-    return jnp.sum(a * b, axis=-1)
 
 
 def _unit(v, fallback=(0.0, 1.0, 0.0)):

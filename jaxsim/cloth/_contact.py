@@ -33,7 +33,7 @@ import jax.numpy as jnp
 
 from .._dataclass import pytree_dataclass
 from .._dtype import tiny
-from ._vec import length
+from ._vec import dot, length
 
 #: IPC's friction smoothing velocity ``eps_v`` (m/s): tangential speeds below it are
 #: treated as static (the friction force ramps from 0 to ``mu lambda`` over it).
@@ -124,7 +124,7 @@ def build(cloth, x0, h, free, prev=None) -> ContactTerms:
 def _tangential(ct: ContactTerms, k, u):
     r = u - ct.slide[k]
     n = ct.normal[k]
-    return r - jnp.sum(r * n, axis=-1, keepdims=True) * n
+    return r - dot(r, n)[..., None] * n
 
 
 def barrier_energy(u, x0, cloth, ct: ContactTerms, free):
@@ -142,7 +142,7 @@ def friction_energy(u, cloth, ct: ContactTerms):
     for k, c in enumerate(cloth.colliders):
         if c.frictional:
             t = _tangential(ct, k, u)
-            total = total + c.friction * jnp.sum(ct.lam[k] * f0(jnp.sum(t * t, axis=-1), ct.eps_h))
+            total = total + c.friction * jnp.sum(ct.lam[k] * f0(dot(t, t), ct.eps_h))
     return total
 
 
@@ -173,7 +173,7 @@ def blocks(u, x0, cloth, ct: ContactTerms, free):
         out = out + (cloth.mass * ct.kappa * jnp.maximum(b2, 0.0))[:, None, None] * n[:, :, None] * n[:, None, :]
         if c.frictional:
             t = _tangential(ct, k, u)
-            y2 = jnp.sum(t * t, axis=-1)
+            y2 = dot(t, t)
             nk = ct.normal[k]
             P = jnp.eye(3, dtype=u.dtype) - nk[:, :, None] * nk[:, None, :]
             H = (2.0 * _d(f0, 1)(y2, ct.eps_h))[:, None, None] * P + (4.0 * _d(f0, 2)(y2, ct.eps_h))[:, None, None] * (
@@ -189,7 +189,7 @@ def force_magnitudes(u, x0, cloth, ct: ContactTerms, free):
         out = out - cloth.mass * ct.kappa * barrier_slope(c.distance_from(x0, u), ct.dhat)
         if c.frictional:
             t = _tangential(ct, k, u)
-            y2 = jnp.sum(t * t, axis=-1)
+            y2 = dot(t, t)
             f1 = 2.0 * jnp.sqrt(y2) * _d(f0, 1)(y2, ct.eps_h)  # d f0 / d|t|, in [0, 1]
             out = out + c.friction * ct.lam[k] * f1
     return out * free[:, 0]

@@ -22,7 +22,8 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from ._scene import Cloth
+from ._scene import Cloth, spring_diff
+from ._vec import dot
 from ._vec import length as _length
 from ._vec import stretch_increment
 
@@ -50,21 +51,20 @@ def step_element(dd, d0, l0, s0, k, e0=None, d_over_h=None):
     """
     v = spring_potential(s0 + stretch_increment(d0, l0, dd), k)
     if e0 is not None:
-        s = jnp.sum(e0 * dd, axis=-1)
+        s = dot(e0, dd)
         v = v + 0.5 * d_over_h * s * s
     return v
 
 
 def damping_element(xi, xj, e0, d01_0, d_over_h):
     """Dissipation potential of one spring with its direction ``e0`` frozen (see module doc)."""
-    s = jnp.sum(e0 * ((xj - xi) - d01_0), axis=-1)
+    s = dot(e0, (xj - xi) - d01_0)
     return 0.5 * d_over_h * s * s
 
 
 def spring_energy(cloth: Cloth, x):
     """Total spring energy (J) at positions ``x (N, 3)``."""
-    i, j = cloth.springs[:, 0], cloth.springs[:, 1]
-    return jnp.sum(spring_element(x[i], x[j], cloth.rest_length, cloth.stiffness))
+    return jnp.sum(spring_potential(_length(spring_diff(cloth, x)) - cloth.rest_length, cloth.stiffness))
 
 
 def gravity_energy(cloth: Cloth, x):
@@ -93,7 +93,7 @@ def total_energy(cloth: Cloth, x, v):
 
 def spring_directions(cloth: Cloth, x):
     """Unit directions ``e (S, 3)`` and vectors ``x_j - x_i (S, 3)`` of every spring."""
-    d = x[cloth.springs[:, 1]] - x[cloth.springs[:, 0]]
+    d = spring_diff(cloth, x)
     n = _length(d)[:, None]
     return jnp.where(n > 0, d / jnp.where(n > 0, n, 1.0), 0.0), d
 

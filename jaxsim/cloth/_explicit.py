@@ -7,7 +7,8 @@ from jax import lax
 
 from . import _energy as en
 from ._integrators import ExplicitEuler
-from ._scene import Cloth, State
+from ._scene import Cloth, State, spring_diff, spring_sum
+from ._vec import dot
 
 #: A substep is rejected as a blow-up when the total energy has risen, since the start of
 #: the step, by more than ``GROWTH`` times the energy the scene could legitimately
@@ -27,9 +28,8 @@ def bounded(cloth: Cloth, x, v):
 def damping_forces(cloth: Cloth, x, v):
     """Along-spring damping forces ``d ((v_j - v_i) . e) e`` (N), ``(N, 3)``."""
     e, _ = en.spring_directions(cloth, x)
-    i, j = cloth.springs[:, 0], cloth.springs[:, 1]
-    f = cloth.damping * jnp.sum((v[j] - v[i]) * e, axis=-1)[:, None] * e
-    return jnp.zeros_like(x).at[i].add(f).at[j].add(-f)
+    f = cloth.damping * dot(spring_diff(cloth, v), e)[:, None] * e
+    return -spring_sum(cloth, f)  # +f on each spring's first particle, -f on its second
 
 
 def explicit(cloth: Cloth, state: State, dt, integ: ExplicitEuler):

@@ -15,7 +15,8 @@ from . import _problem as pr
 from ._coarse import coarse_factor, two_level
 from ._integrators import ImplicitEuler
 from ._linsolve import block_inverse, dense_solve, pcg
-from ._scene import spring_sum
+from ._scene import spring_diff, spring_sum
+from ._vec import matvec
 
 #: Armijo constants of the backtracking line search (lab Algorithm 2).
 BETA, GAMMA = 0.5, 1e-4
@@ -70,7 +71,7 @@ def block_jacobi(p: pr.StepProblem, A, C=None):
     D = spring_sum(p.cloth, A, signed=False) + particle_blocks(p, C)
     D = jnp.where(p.free[:, :, None] > 0, D, jnp.broadcast_to(jnp.eye(3, dtype=A.dtype), D.shape))
     Dinv = block_inverse(D)
-    return lambda r: jnp.einsum("nab,nb->na", Dinv, r)
+    return lambda r: matvec(Dinv, r)
 
 
 def _safe_ratio(num, den):
@@ -96,7 +97,6 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
     solver = integ.resolved_solver(N)
     objective = functools.partial(pr.incremental_potential, p=p)
     grad = jax.grad(objective)
-    spr_i, spr_j = c.springs[:, 0], c.springs[:, 1]
 
     projection = integ.project_psd  # True, False or "auto"
     f3 = free.repeat(3, axis=1).reshape(-1)
@@ -126,8 +126,8 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
 
     def blocks_hvp(A, C):
         def hvp(v):
-            out = spring_sum(c, jnp.einsum("sab,sb->sa", A, v[spr_j] - v[spr_i])) + m / h**2 * v
-            return out if C is None else out + jnp.einsum("nab,nb->na", C, v)
+            out = spring_sum(c, matvec(A, spring_diff(c, v))) + m / h**2 * v
+            return out if C is None else out + matvec(C, v)
 
         return hvp
 

@@ -30,7 +30,8 @@ from .._dataclass import pytree_dataclass
 from .._dtype import tiny
 from . import _contact as ct
 from . import _energy as en
-from ._scene import Cloth, spring_sum
+from ._scene import Cloth, spring_diff, spring_sum
+from ._vec import dot
 
 
 def free_mask(cloth: Cloth, dtype) -> jax.Array:
@@ -76,8 +77,7 @@ class StepProblem:
         scene holds those at its end); default static."""
         if not cloth.damped:
             cloth = dataclasses.replace(cloth, damping=jnp.zeros((), x0.dtype))
-        i, j = cloth.springs[:, 0], cloth.springs[:, 1]
-        d0 = x0[j] - x0[i]
+        d0 = spring_diff(cloth, x0)
         l0 = en._length(d0)
         e0 = None
         if cloth.damped:
@@ -86,7 +86,8 @@ class StepProblem:
         contact = None
         if cloth.colliders:
             contact = ct.build(cloth, x0, h, free_mask(cloth, x0.dtype), prev_colliders)
-        return StepProblem(cloth, x0, v0, h, d0, l0, l0 - cloth.rest_length, h * (v0[j] - v0[i]), e0, contact)
+        return StepProblem(cloth, x0, v0, h, d0, l0, l0 - cloth.rest_length, h * spring_diff(cloth, v0), e0,
+                           contact)
 
     @property
     def free(self) -> jax.Array:
@@ -120,8 +121,7 @@ class StepProblem:
 
     def spring_change(self, w):
         """``(S, 3)`` change ``h (v^n_j - v^n_i) + (w_j - w_i)`` of every spring vector (m)."""
-        i, j = self.cloth.springs[:, 0], self.cloth.springs[:, 1]
-        return self.dv + (w[j] - w[i])
+        return self.dv + spring_diff(self.cloth, w)
 
 
 def incremental_potential(w, p: StepProblem):
@@ -148,7 +148,7 @@ def force_scale(w, p: StepProblem):
     dd = p.spring_change(w)
     t = jnp.abs(c.stiffness * (p.s0 + en.stretch_increment(p.d0, p.l0, dd)))
     if p.e0 is not None:
-        t = t + jnp.abs(p.d_over_h * jnp.sum(p.e0 * dd, axis=-1))
+        t = t + jnp.abs(p.d_over_h * dot(p.e0, dd))
     m = c.mass
     inertia = m / p.h**2 * en._length(w + p.h**2 * c.gravity)
     scale = inertia + m * en._length(c.gravity) + spring_sum(c, t, signed=False)

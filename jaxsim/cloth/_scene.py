@@ -13,6 +13,7 @@ from .._dtype import as_float, check_array_dtype, check_float_dtype, default_flo
 from .._validate import check_finite, check_int, check_positive, check_real, check_shape
 from ._coarse import aggregate
 from ._colliders import check_colliders, count_inside, describe_inside
+from ._stencil import Stencil, detect, differences, sums
 
 
 @pytree_dataclass
@@ -39,6 +40,11 @@ class Cloth:
         ``None``): each particle's cell in a coarse voxel grid of at most 64 cells, used
         by ``ImplicitEuler(preconditioner="two_level")`` (``_coarse``).
       num_aggregates: static, the number of those cells.
+      stencil: static, derived from ``springs`` at construction (leave it ``None``): the
+        grid layout (``_stencil.Stencil``) when the springs are a regular grid's
+        families in order (as ``grid`` and ``lab_cloth`` build them), else ``None``.
+        With a layout, spring differences and per-particle sums are shifted slices
+        rather than gathers through ``incidence`` (the same sums, tested equal).
       colliders: tuple of ``Plane``, ``Sphere`` and ``Capsule`` (``_colliders``); the
         empty default compiles no contact code at all.
       contact_gap: ``()`` IPC barrier distance ``dhat`` (m); default 1e-3 times the
@@ -63,6 +69,7 @@ class Cloth:
     incidence: jax.Array | None = None
     aggregates: jax.Array | None = None
     num_aggregates: int = static_field(default=0)
+    stencil: Stencil | None = static_field(default=None)
     colliders: tuple = ()
     contact_gap: jax.Array | None = None
     contact_stiffness: jax.Array | None = None
@@ -115,6 +122,10 @@ class Cloth:
         set_(self, "damping", as_float(d, dtype))
         set_(self, "damped", bool(self.damped) and float(d) != 0.0)
         set_(self, "incidence", jnp.asarray(incidence(np.asarray(springs), N)))
+        st = self.stencil
+        if not (isinstance(st, Stencil) and np.array_equal(st.springs(), springs)):
+            st = detect(springs, N)
+        set_(self, "stencil", st)
         ids = self.aggregates
         if ids is None or self.num_aggregates == 0 or np.shape(ids) != (N,):
             ids, count = aggregate(rest)
@@ -186,13 +197,24 @@ def incidence(springs: np.ndarray, n_particles: int) -> np.ndarray:
     return out
 
 
+def spring_diff(cloth: Cloth, v):
+    """``v_j - v_i`` for every spring ``(i, j)``: ``(N, ...) -> (S, ...)`` (shifted slices
+    on a grid layout, else a gather)."""
+    if cloth.stencil is not None:
+        return differences(cloth.stencil, v)
+    return v[cloth.springs[:, 1]] - v[cloth.springs[:, 0]]
+
+
 def spring_sum(cloth: Cloth, f, signed: bool = True):
     """Per-particle sums of per-spring values ``f (S, ...)`` -> ``(N, ...)``.
 
     ``signed``: ``+f_s`` at each spring's second end and ``-f_s`` at its first (the
     assembly of spring forces); otherwise ``+f_s`` at both ends (the block diagonal).
-    Gathers through ``cloth.incidence`` when present, else scatter-adds.
+    Sums shifted slices on a grid layout (``cloth.stencil``), else gathers through
+    ``cloth.incidence`` when present, else scatter-adds.
     """
+    if cloth.stencil is not None:
+        return sums(cloth.stencil, f, signed)
     i, j = cloth.springs[:, 0], cloth.springs[:, 1]
     if f.shape[0] == 0:
         return jnp.zeros((cloth.num_particles,) + f.shape[1:], f.dtype)
@@ -201,8 +223,14 @@ def spring_sum(cloth: Cloth, f, signed: bool = True):
         return out.at[i].add(-f if signed else f)
     inc = cloth.incidence
     w = (jnp.sign(inc) if signed else jnp.abs(jnp.sign(inc))).astype(f.dtype)
+    w = w.reshape(w.shape + (1,) * (f.ndim - 1))
     g = f[jnp.maximum(jnp.abs(inc) - 1, 0)]  # (N, D, ...)
-    return jnp.einsum("nd,nd...->n...", w, g)
+    # summed slot by slot (D is static): an einsum over D is a batched dot that XLA:CPU
+    # cannot fuse with the gather, and it costs as much as the rest of a CG iteration
+    out = w[:, 0] * g[:, 0]
+    for d in range(1, g.shape[1]):
+        out = out + w[:, d] * g[:, d]
+    return out
 
 
 def pin_mask(n_particles: int, ids) -> np.ndarray:
@@ -219,23 +247,24 @@ def pin_mask(n_particles: int, ids) -> np.ndarray:
     return mask
 
 
+#: The grid's spring families: offset of a spring's first particle from its second, and kind.
+GRID_FAMILIES = (((-1, 0), 0), ((0, -1), 0), ((-1, -1), 1), ((-1, 1), 1), ((-2, 0), 2), ((0, -2), 2))
+
+
 def grid_springs(n: int) -> tuple[np.ndarray, np.ndarray]:
     """Springs of an ``(n+1) x (n+1)`` particle grid, id ``i*(n+1) + j``.
 
     Returns ``(springs (S, 2), kind (S,))`` with kind 0 structural ``(i-1, j)``,
-    ``(i, j-1)``; 1 shear ``(i-1, j-1)``, ``(i-1, j+1)``; 2 bending ``(i-2, j)``, ``(i, j-2)``.
+    ``(i, j-1)``; 1 shear ``(i-1, j-1)``, ``(i-1, j+1)``; 2 bending ``(i-2, j)``, ``(i, j-2)``
+    (each spring joins particle ``(i, j)`` to the one at that offset).  The springs come
+    family by family, each in row-major order of ``(i, j)``: the layout of the grid
+    operator (``_stencil``), which the scene then applies by shifted slices.
     """
     m = n + 1
-    pairs, kinds = [], []
-    for i in range(m):
-        for j in range(m):
-            me = i * m + j
-            for (di, dj), kind in (((-1, 0), 0), ((0, -1), 0), ((-1, -1), 1), ((-1, 1), 1), ((-2, 0), 2), ((0, -2), 2)):
-                a, b = i + di, j + dj
-                if 0 <= a < m and 0 <= b < m:
-                    pairs.append((a * m + b, me))
-                    kinds.append(kind)
-    return np.asarray(pairs, np.int32).reshape(-1, 2), np.asarray(kinds, np.int8)
+    fams = [(o, k) for o, k in GRID_FAMILIES if abs(o[0]) < m and abs(o[1]) < m]
+    st = Stencil(m, m, tuple(o for o, _ in fams))
+    kinds = [np.full(st.count(f), k, np.int8) for f, (_, k) in enumerate(fams)]
+    return st.springs().astype(np.int32), np.concatenate(kinds)
 
 
 def grid(n: int, spacing: float = 0.2, *, origin=(0.0, 1.5, -1.0), mass: float = 1.0, stiffness: float = 100.0,

@@ -1,0 +1,129 @@
+"""The grid operator (``_stencil``): found automatically, and equal to the general one."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxsim import cloth as C
+from jaxsim.cloth._scene import spring_diff, spring_sum
+from jaxsim.cloth._stencil import Stencil, detect
+from test_cloth_stability import all_eqns, step_jaxpr
+
+
+def permuted(c, seed=0):
+    """The same scene with its springs in random order: no grid layout, the general operator."""
+    perm = np.random.default_rng(seed).permutation(c.num_springs)
+    out = C.replace(c, springs=np.asarray(c.springs)[perm], rest_length=c.rest_length[perm],
+                    stiffness=c.stiffness[perm])
+    return out, perm
+
+
+def numpy_sum(springs, f, n, signed):
+    out = np.zeros((n,) + f.shape[1:])
+    np.add.at(out, springs[:, 1], f)
+    np.add.at(out, springs[:, 0], -f if signed else f)
+    return out
+
+
+@pytest.mark.parametrize("n", [1, 2, 5, 10])
+def test_grid_scenes_get_the_grid_operator(n):
+    c = C.grid(n, dtype=np.float64)
+    m = n + 1
+    assert c.stencil is not None and (c.stencil.rows, c.stencil.cols) == (m, m)
+    np.testing.assert_array_equal(c.stencil.springs(), np.asarray(c.springs))
+    # the families keep grid_springs' kinds, pairs and counts
+    springs, kind = C.grid_springs(n)
+    np.testing.assert_array_equal(springs, np.asarray(c.springs))
+    if n >= 2:
+        assert np.bincount(kind).tolist() == [2 * m * n, 2 * n * n, 2 * m * (n - 1)]
+
+
+def test_other_layouts_keep_the_general_operator():
+    lab = C.lab_cloth(dtype=np.float64)
+    assert lab.stencil is not None
+    assert permuted(lab)[0].stencil is None
+    disk = C.from_mesh(*C.read_obj(C.TABLECLOTH_OBJ), dtype=np.float64)
+    assert disk.stencil is None
+    assert detect(np.zeros((0, 2), int), 4) is None
+    # the springs with one spring removed are no longer whole families
+    assert detect(np.asarray(lab.springs)[1:], lab.num_particles) is None
+
+
+def test_replacing_springs_recomputes_the_layout():
+    lab = C.lab_cloth(dtype=np.float64)
+    shuffled, perm = permuted(lab)
+    back = C.replace(shuffled, springs=np.asarray(shuffled.springs)[np.argsort(perm)],
+                     rest_length=lab.rest_length, stiffness=lab.stiffness)
+    assert back.stencil == lab.stencil
+    # a stale layout handed to the constructor is checked against the springs
+    fake = Stencil(11, 11, ((-1, 0),))
+    assert C.replace(lab, stencil=fake).stencil == lab.stencil
+
+
+@pytest.mark.parametrize("shape", [(), (3,), (3, 3)])
+@pytest.mark.parametrize("signed", [True, False])
+def test_grid_operator_equals_gathers_and_numpy(shape, signed):
+    # a non-square grid with unusual families, given as a plain spring list
+    st = Stencil(5, 7, ((0, -1), (-1, 0), (-1, 2), (-3, -1), (2, 1)))
+    springs = st.springs()
+    assert detect(springs, 35) == st
+    rng = np.random.default_rng(1)
+    rest = np.stack([np.arange(35) // 7, np.zeros(35), np.arange(35) % 7], 1) * 0.1
+    L = np.linalg.norm(rest[springs[:, 1]] - rest[springs[:, 0]], axis=1)
+    c = C.Cloth(rest=rest, springs=springs, rest_length=L, stiffness=np.full(len(L), 10.0), mass=np.ones(35),
+                pinned=np.zeros(35, bool), gravity=np.zeros(3), damping=np.asarray(0.1))
+    assert c.stencil == st
+    g, perm = permuted(c, seed=2)
+    f = rng.normal(size=(len(springs),) + shape)
+    ref = numpy_sum(springs, f, 35, signed)
+    np.testing.assert_allclose(spring_sum(c, jnp.asarray(f), signed), ref, rtol=0, atol=1e-13)
+    np.testing.assert_allclose(spring_sum(g, jnp.asarray(f[perm]), signed), ref, rtol=0, atol=1e-13)
+    v = rng.normal(size=(35,) + shape)
+    np.testing.assert_array_equal(spring_diff(c, jnp.asarray(v)), v[springs[:, 1]] - v[springs[:, 0]])
+
+
+@pytest.mark.parametrize("integ", [C.ImplicitEuler(solver="cg"), C.ImplicitEuler(solver="dense"),
+                                   C.ExplicitEuler(substeps=10)], ids=["cg", "dense", "explicit"])
+def test_steps_with_the_grid_operator_equal_the_general_operator(integ):
+    lab = C.lab_cloth(dtype=np.float64)
+    gen, _ = permuted(lab)
+    a, ia = C.rollout(lab, C.State.at_rest(lab), 1 / 60, 5, integ)
+    b, ib = C.rollout(gen, C.State.at_rest(gen), 1 / 60, 5, integ)
+    np.testing.assert_allclose(a.x, b.x, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(a.v, b.v, rtol=0, atol=1e-10)
+    np.testing.assert_array_equal(ia.newton_iters, ib.newton_iters)
+    assert bool(jnp.all(ia.converged))
+
+
+def test_gradient_through_the_grid_operator_equals_the_general_one():
+    lab = C.lab_cloth(dtype=np.float64)
+    gen, perm = permuted(lab)
+    integ = C.ImplicitEuler(solver="cg")
+
+    def loss(k, c):
+        c = C.replace(c, stiffness=k)
+        s, _ = C.step(c, C.State.at_rest(c), 1 / 60, integ)
+        return jnp.sum(s.x[:, 1])
+
+    ga = jax.grad(loss)(lab.stiffness, lab)
+    gb = jax.grad(loss)(gen.stiffness, gen)
+    np.testing.assert_allclose(ga[perm], gb, rtol=1e-9, atol=1e-14)
+
+
+def test_grid_step_compiles_without_gathers_or_scatters():
+    """The grid scene's step reads its springs by slices only; the same scene in another
+    spring order gathers (the test can fail both ways)."""
+    lab = C.lab_cloth(dtype=np.float64)
+    integ = C.ImplicitEuler(solver="cg")
+    prims = {e.primitive.name for e in all_eqns(step_jaxpr(lab, integ))}
+    assert not {p for p in prims if "gather" in p or "scatter" in p}, prims
+    prims_gen = {e.primitive.name for e in all_eqns(step_jaxpr(permuted(lab)[0], integ))}
+    assert "gather" in prims_gen
+
+
+def test_stacked_scenes_keep_a_shared_layout():
+    a = C.grid(4, dtype=np.float64)
+    b = C.replace(a, stiffness=50.0)
+    assert C.stack_scenes([a, b]).stencil == a.stencil
+    assert C.stack_scenes([a, permuted(a)[0]]).stencil is None
