@@ -97,6 +97,7 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
     solver = integ.resolved_solver(N)
     objective = functools.partial(pr.incremental_potential, p=p)
     grad = jax.grad(objective)
+    value_and_grad = jax.value_and_grad(objective)
 
     projection = integ.project_psd  # True, False or "auto"
     f3 = free.repeat(3, axis=1).reshape(-1)
@@ -171,9 +172,15 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
         return jnp.ones((), dtype) if p.contact is None else ct.step_bound(p.displacement(w), dx, p.x0, c, free)
 
     def line_search(w, gw, gvec, dx):
+        """``(dx, alpha, halvings, g(w + alpha dx), grad g(w + alpha dx))``.
+
+        The first trial is evaluated with its gradient (one forward pass for both), which
+        is the Newton loop's next gradient whenever the full step is accepted; after a
+        halving the gradient is taken once at the accepted point."""
+        dx = dx * free
         if not integ.line_search:
             a = first_step(w, dx)
-            return dx, a, jnp.int32(0), objective(w + a * dx)
+            return (dx, a, jnp.int32(0)) + value_and_grad(w + a * dx)
         # keep every step a descent step
         slope = jnp.sum(gvec * dx)
         descent = slope < 0
@@ -192,18 +199,19 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
             a = BETA * a
             return a, k + 1, objective(w + a * dx)
 
-        a, k, gnew = lax.while_loop(cond, body, (a0, jnp.int32(0), objective(w + a0 * dx)))
-        return dx, a, k, gnew
+        g0, grad0 = value_and_grad(w + a0 * dx)
+        a, k, gnew = lax.while_loop(cond, body, (a0, jnp.int32(0), g0))
+        return dx, a, k, gnew, lax.cond(k == 0, lambda: grad0, lambda: grad(w + a * dx))
 
     def body(s: NewtonState) -> NewtonState:
         tol = integ.cg_tol
         if integ.cg_forcing > 0 and integ.newton_iters > 1:  # inexact Newton (Eisenstat & Walker 1996)
             tol = jnp.maximum(integ.cg_tol, jnp.minimum(integ.cg_forcing, s.rel))
         dx, k_cg, res = newton_direction(s.w, s.grad, s.guess, tol)
-        dx, a, k_ls, g_new = line_search(s.w, s.g, s.grad, dx)
-        step = a * dx * free
+        dx, a, k_ls, g_new, gvec = line_search(s.w, s.g, s.grad, dx)
+        step = a * dx  # dx is 0 on pins
         w_new = s.w + step
-        gvec = grad(w_new) * free
+        gvec = gvec * free
         ok = jnp.all(jnp.isfinite(w_new)) & jnp.isfinite(g_new) & jnp.all(jnp.isfinite(gvec))
         rel = pr.relative_gradient(gvec, w_new, p)
         dmax = jnp.max(jnp.abs(step))
@@ -216,9 +224,10 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
                            alpha=a, res=res, done=done, fail=s.fail | ~ok)
 
     w0 = p.start
-    g0 = grad(w0) * free
+    f0, g0 = value_and_grad(w0)
+    g0 = g0 * free
     z = jnp.zeros((), dtype)
-    s0 = NewtonState(w=w0, g=objective(w0), grad=g0, rel=pr.relative_gradient(g0, w0, p), guess=h * p.v0 * free,
+    s0 = NewtonState(w=w0, g=f0, grad=g0, rel=pr.relative_gradient(g0, w0, p), guess=h * p.v0 * free,
                      it=jnp.int32(0), cg=jnp.int32(0), bt=jnp.int32(0), alpha=z, res=z,
                      done=jnp.array(False), fail=jnp.array(False))
     return lax.while_loop(lambda s: (s.it < integ.newton_iters) & ~s.done, body, s0)
