@@ -12,9 +12,9 @@ the measured step starts from a moving, deformed state.
 
 ms/step is the median over repeats of a ``rollout`` divided by its length (compile time
 reported apart): 10 steps on A and B, 5 on C 32x32, 2 on C 64x64 and for the slow
-baselines (dense, explicit with 1000 substeps), so that the whole benchmark, contact
-included, finishes in under 15 minutes on the 2-core CPU.  C 64x64
-runs the two-level preconditioner only, plus one Jacobi row at k = 1e3 (Jacobi CG on
+baselines (dense, explicit with 1000 substeps), to bring the whole benchmark, contact
+included, near 15 minutes on the 2-core CPU (``wall_s`` in the JSON).  C 64x64
+runs the two-level preconditioner only, plus Jacobi at cg_tol 1e-6 at k = 1e3 (Jacobi CG on
 the stiff scenes is measured on C 32x32).  Accuracy is ``max|x - x_ref|`` after one step from the same
 state, ``x_ref`` a converged float64 Newton step (tol 1e-12).  The scipy reference
 is a Newton loop on the analytic Hessian with ``spsolve``, written here, iterated to
