@@ -37,11 +37,6 @@ def spring_potential(stretch, k):
     return 0.5 * k * stretch * stretch
 
 
-def spring_element(xi, xj, L, k):
-    """Potential of one spring: ``k/2 (|x_j - x_i| - L)^2`` (J)."""
-    return spring_potential(_length(xj - xi) - L, k)
-
-
 def step_element(dd, d0, l0, s0, k, e0=None, d_over_h=None):
     """Potential of one spring in the implicit step, as a function of ``dd = du_j - du_i``.
 
@@ -54,12 +49,6 @@ def step_element(dd, d0, l0, s0, k, e0=None, d_over_h=None):
         s = dot(e0, dd)
         v = v + 0.5 * d_over_h * s * s
     return v
-
-
-def damping_element(xi, xj, e0, d01_0, d_over_h):
-    """Dissipation potential of one spring with its direction ``e0`` frozen (see module doc)."""
-    s = dot(e0, (xj - xi) - d01_0)
-    return 0.5 * d_over_h * s * s
 
 
 def spring_energy(cloth: Cloth, x):
