@@ -8,7 +8,7 @@ from jax.test_util import check_grads
 
 from conftest import TOL, random_unit_quaternions
 from jaxsim import curves, ik
-from jaxsim.ik import _fabrik, _joints
+from jaxsim.ik import _fabrik, _joints, _loop
 
 SOLVERS = {"ccd": ik.ccd, "fabrik": ik.fabrik}
 
@@ -165,6 +165,54 @@ def test_unrolled_equals_rolled():
         a, b = f(chain, t, unroll=True, max_iters=30), f(chain, t, unroll=False, max_iters=30)
         np.testing.assert_allclose(a.positions, b.positions, atol=1e-9)
         assert int(a.iterations) == int(b.iterations)
+
+
+@pytest.mark.parametrize("early_exit", [False, True])
+@pytest.mark.parametrize("trace", [False, True])
+def test_snapshot_freeze_equals_where(trace, early_exit):
+    """The two ways of freezing a finished element give the same states (to rounding),
+    counts and traces:
+    elements done at the start, done at different sweeps (the first and the last included)
+    and never done."""
+    def sweep(s):
+        x, y = s
+        x = 0.5 * x + 0.01 * jnp.sin(y)
+        return (x, y + 1.0), x * x
+
+    x0 = jnp.array([3.0, 0.1, 1.0, 1e3, 0.5, 2.0, 0.09, 0.0])
+    state0 = (x0, jnp.arange(8.0))
+    done0 = jnp.array([False, True, False, False, False, False, False, True])
+    err0 = jnp.abs(x0)
+    out = {}
+    for freeze in ("where", "snapshot"):
+        out[freeze] = jax.jit(lambda s, f=freeze: _loop.masked_sweeps(
+            sweep, s, err0, jnp.zeros(8, jnp.int32), done0, 0.05, max_iters=6, trace=trace,
+            early_exit=early_exit, freeze=f))(state0)
+    (sw, iw, tw), (ss, is_, ts) = out["where"], out["snapshot"]
+    iters = np.asarray(iw)
+    # first within tol at sweeps 1, 4, 5 and 6 (the last), one never, two at the start
+    assert list(iters) == [6, 0, 5, 6, 4, 6, 1, 0]
+    for a, b in zip(sw, ss):  # the same sweeps; XLA may round the two programs differently
+        np.testing.assert_allclose(a, b, rtol=1e-14, atol=0)
+    np.testing.assert_array_equal(iw, is_)
+    if trace:
+        np.testing.assert_allclose(tw, ts, rtol=1e-14, atol=0)
+
+
+def test_batched_fabrik_frozen_at_first_sweep_within_tol(dtype):
+    """The batched (unrolled, snapshot) FABRIK solve returns, for each target, the pose of
+    the sweep that first met ``tol``: the same as one-target solves on the rolled loop."""
+    chain = ik.Chain(np.asarray(ik.straight_chain(np.ones(5), direction=(0, 1, 0)).offsets, dtype))
+    rng = np.random.default_rng(3)
+    d = rng.normal(size=(300, 3))
+    t = (d / np.linalg.norm(d, axis=1, keepdims=True) * 5.0 * rng.uniform(0, 1.1, (300, 1)) ** (1 / 3)).astype(dtype)
+    t[0] = np.asarray(ik.fk(chain).positions)[-1]  # done before the first sweep
+    batched = ik.solve(chain, t, solver="fabrik", max_iters=40, tol=1e-3, unroll=True)
+    rolled = jax.vmap(lambda x: ik.solve(chain, x, solver="fabrik", max_iters=40, tol=1e-3, unroll=False))(t)
+    it = np.asarray(batched.iterations)
+    assert it.min() == 0 and 1 < np.median(it) < 40 and it.max() == 40  # a mix of stopping sweeps
+    np.testing.assert_array_equal(batched.iterations, rolled.iterations)
+    np.testing.assert_allclose(batched.positions, rolled.positions, atol=TOL[np.dtype(dtype)])
 
 
 # ---- hypothesis properties (float64; six-joint chains so one compilation serves all) ----

@@ -1,16 +1,42 @@
 """The sweep loop shared by every IK solver: a fixed-length ``lax.scan`` whose sweeps are
 masked no-ops once an element is done (the JAXopt pattern), or a ``lax.while_loop`` that
-stops when the whole batch is done."""
+stops when the whole batch is done.  A finished element keeps its state either by a
+``where`` at every sweep or by a snapshot taken at the sweep after it finished."""
 
 from __future__ import annotations
 
+from typing import Any
+
+import jax
 import jax.numpy as jnp
 from jax import lax
 
+from .._dataclass import pytree_dataclass
 from . import _quat
 
 
-def masked_sweeps(sweep, state0, err0, iters0, done0, tol, *, max_iters, trace, early_exit):
+@pytree_dataclass
+class _SweepCarry:
+    """What the sweep loop carries, every leaf of batch shape ``B``.
+
+    Attributes:
+      state: the solver's state (a pytree) after the sweeps so far.
+      snap: ``freeze="snapshot"`` only (else ``None``): each finished element's state.
+      pend: ``freeze="snapshot"`` only: ``state`` met ``tol`` at the sweep just run.
+      err: the error after the sweeps so far (only with a trace, else ``None``).
+      iters: ``int32`` sweeps counted.
+      done: ``bool``, met ``tol``.
+    """
+
+    state: Any
+    snap: Any
+    pend: jax.Array | None
+    err: jax.Array | None
+    iters: jax.Array
+    done: jax.Array
+
+
+def masked_sweeps(sweep, state0, err0, iters0, done0, tol, *, max_iters, trace, early_exit, freeze="where"):
     """Run up to ``max_iters`` sweeps.
 
     Args:
@@ -21,6 +47,14 @@ def masked_sweeps(sweep, state0, err0, iters0, done0, tol, *, max_iters, trace, 
       tol: scalar tolerance on the error.
       max_iters, trace, early_exit: static; ``trace`` carries the error and returns it
         per sweep, ``early_exit`` uses the while loop (forward-mode differentiable only).
+      freeze: static, how a finished element keeps its state.  ``"where"`` selects the
+        old state over the new one at every sweep.  ``"snapshot"`` lets every element
+        keep sweeping and copies the state into a snapshot at the sweep after the one
+        that met ``tol`` (the flag is then a loop carry, not recomputed from this sweep's
+        output inside every select), and returns the snapshot for finished elements.
+        Same states and counts; the sweep's own chain of operations carries no select,
+        which lets XLA keep it in fewer, simpler fusions (``benchmarks/ik_throughput.py``).
+        The sweep must stay finite on a finished element's later states.
 
     Returns:
       ``(state, iterations, trace)``; ``trace`` is ``(max_iters, *B)`` or ``None``.
@@ -29,21 +63,34 @@ def masked_sweeps(sweep, state0, err0, iters0, done0, tol, *, max_iters, trace, 
     """
     B = jnp.shape(done0)
     tol2 = tol * tol
+    snapshot = freeze == "snapshot"
 
-    def body(carry, _):
-        state, err, iters, done = carry
+    def body(c, _):
+        snap, state = c.snap, c.state
+        if snapshot:  # ``pend``: the state met ``tol`` at the previous sweep
+            snap = _quat.where(c.pend, state, snap)
         new, e2 = sweep(state)
-        state = _quat.where(done, state, new)
-        iters = iters + (~done).astype(jnp.int32)
+        err = c.err
         if trace:  # the error is carried only when a per-sweep trace is asked for
-            err = jnp.where(done, err, _quat.safe_sqrt(e2))
-        done = done | (e2 <= tol2)
-        return (state, err, iters, done), (err if trace else None)
+            err = jnp.where(c.done, err, _quat.safe_sqrt(e2))
+        hit = ~c.done & (e2 <= tol2)
+        c = _SweepCarry(state=new if snapshot else _quat.where(c.done, state, new), snap=snap,
+                        pend=hit if snapshot else None, err=err,
+                        iters=c.iters + (~c.done).astype(jnp.int32), done=c.done | hit)
+        return c, (err if trace else None)
 
-    carry0 = (state0, jnp.broadcast_to(err0, B) if trace else None, iters0, done0)
+    def finish(c):
+        state = c.state
+        if snapshot:
+            state = _quat.where(c.done, _quat.where(c.pend, state, c.snap), state)
+        return state, c.iters
+
+    carry0 = _SweepCarry(state=state0, snap=state0 if snapshot else None,
+                         pend=jnp.zeros(B, bool) if snapshot else None,
+                         err=jnp.broadcast_to(err0, B) if trace else None, iters=iters0, done=done0)
     if not early_exit:
-        (state, _, iters, _), errs = lax.scan(body, carry0, None, length=max_iters)
-        return state, iters, errs
+        carry, errs = lax.scan(body, carry0, None, length=max_iters)
+        return (*finish(carry), errs)
     buf0 = jnp.zeros((max_iters,) + B, jnp.result_type(err0)) if trace else None
 
     def w_body(c):
@@ -54,11 +101,12 @@ def masked_sweeps(sweep, state0, err0, iters0, done0, tol, *, max_iters, trace, 
         return k + 1, carry, buf
 
     def w_cond(c):
-        return (c[0] < max_iters) & ~jnp.all(c[1][3])
+        return (c[0] < max_iters) & ~jnp.all(c[1].done)
 
-    k, (state, err_last, iters, _), buf = lax.while_loop(w_cond, w_body, (0, carry0, buf0))
+    k, carry, buf = lax.while_loop(w_cond, w_body, (0, carry0, buf0))
+    state, iters = finish(carry)
     errs = None
     if trace:
         rows = jnp.arange(max_iters).reshape((max_iters,) + (1,) * len(B))
-        errs = jnp.where(rows < k, buf, err_last)
+        errs = jnp.where(rows < k, buf, carry.err)
     return state, iters, errs

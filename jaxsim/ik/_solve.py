@@ -3,9 +3,9 @@
 Both solvers share one driver: validate at the boundary, move the quaternion/vector
 component axis to the front (``(J, 4, *B)``, ``(3, *B)``) so any batch trails and every
 joint update is one elementwise fusion over the batch, then scan ``max_iters`` sweeps.
-Once an element is within ``tol`` its state is frozen by ``where`` and its iteration
-counter stops, so ``vmap`` and reverse-mode ``grad`` work on the whole fixed-length loop
-(the JAXopt pattern).
+Once an element is within ``tol`` its iteration counter stops and its state is frozen
+(by ``where``, or for the batched FABRIK sweep by a snapshot, see ``_loop``), so ``vmap``
+and reverse-mode ``grad`` work on the whole fixed-length loop (the JAXopt pattern).
 """
 
 from __future__ import annotations
@@ -121,8 +121,12 @@ def _run(offsets, target, local0, tol, *, kind, max_iters, unroll, trace, early_
                 new = fabrik_sweep(state, tgt, root, lengths, fallback, unroll=False)
                 return new, _quat.sqnorm(_quat.sub(_joints.get(new, J - 1), tgt))
 
+    # The lean FABRIK sweep keeps going on finished elements and returns a snapshot (one
+    # select per sweep off the sweep's chain: 2.42 -> 2.93 M solves/s on the benchmark's
+    # 100k targets); CCD's frames sweep ran slower that way (0.58 -> 0.47) and keeps ``where``.
+    freeze = "snapshot" if kind == "fabrik" and unroll else "where"
     state, iters, errs = masked_sweeps(sweep, state0, err0, iters0, jnp.broadcast_to(done0, B), tol,
-                                       max_iters=max_iters, trace=trace, early_exit=early_exit)
+                                       max_iters=max_iters, trace=trace, early_exit=early_exit, freeze=freeze)
 
     if kind == "ccd" and unroll:
         local = [batched(q) for q in locals_from_frames(state)]
