@@ -55,10 +55,11 @@ class ImplicitEuler:
         forces; ``jaxsim.cloth._problem.force_scale``).  ``None``: ``DEFAULT_RTOL`` of
         the scene's dtype.
       line_search: backtracking (Armijo) line search, Algorithm 2 of the lab.
-      project_psd: ``"auto"`` (default): Newton uses the exact spring blocks, and only when
-        the Hessian they make is not positive definite (PCG meets non-positive
-        curvature, or Cholesky fails) is that iteration's direction recomputed with
-        every block projected.  ``True``: always clamp each spring block's negative
+      project_psd: ``"auto"`` (default): Newton uses the exact spring blocks.  When the
+        Hessian they make is not positive definite (PCG meets non-positive curvature,
+        or Cholesky fails), that iteration's direction is recomputed on the exact
+        Hessian with the inertia term doubled (``_newton.SHIFT``), and if that is
+        still indefinite, with every block projected.  ``True``: always clamp each spring block's negative
         (compression) eigenvalue at 0 (the lab's choice; on stiff, light cloth it turns
         Newton's quadratic convergence into linear).  ``False``: never project.
       preconditioner: PCG's preconditioner.  ``"jacobi"`` (default): the 3x3 diagonal

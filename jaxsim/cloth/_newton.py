@@ -21,6 +21,14 @@ from ._vec import matvec
 #: Armijo constants of the backtracking line search (lab Algorithm 2).
 BETA, GAMMA = 0.5, 1e-4
 
+#: ``project_psd="auto"``: when the exact Hessian is not positive definite, the direction is
+#: first retried on the exact Hessian plus this many times the inertia term ``M / h^2``
+#: (a Levenberg-Marquardt shift in the mass metric, which keeps the springs' curvature),
+#: and only if that is still indefinite on the Hessian with every block clamped.  On scene C
+#: k = 1e5 (float64) the clamped Hessian alone left Newton creeping for 30-50 iterations at a
+#: relative gradient of 1e-6-1e-5 on some steps; see the README's stiff-cloth section.
+SHIFT = 1.0
+
 
 @pytree_dataclass
 class NewtonState:
@@ -109,8 +117,8 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
         res = _safe_ratio(jnp.linalg.norm(H @ dx - b.reshape(-1)), jnp.linalg.norm(b))
         return dx.reshape(N, 3), jnp.int32(0), res
 
-    def assembled(A, C):
-        H = en.assemble(c, A) + jnp.diag(jnp.repeat(c.mass, 3) / h**2)
+    def assembled(A, C, inertia=1.0):
+        H = en.assemble(c, A) + jnp.diag(inertia * jnp.repeat(c.mass, 3) / h**2)
         if C is not None:
             eye = jnp.eye(N, dtype=C.dtype)
             H = H + (eye[:, None, :, None] * C[:, :, None, :]).reshape(3 * N, 3 * N)
@@ -125,9 +133,9 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
         dx, k, res, broke = pcg(restricted(hvp), b, guess * free, Minv, tol=tol, max_iters=integ.cg_max_iters)
         return dx, k, jnp.where(jnp.isfinite(res), res, jnp.inf), broke
 
-    def blocks_hvp(A, C):
+    def blocks_hvp(A, C, inertia=1.0):
         def hvp(v):
-            out = spring_sum(c, matvec(A, spring_diff(c, v))) + m / h**2 * v
+            out = spring_sum(c, matvec(A, spring_diff(c, v))) + inertia * m / h**2 * v
             return out if C is None else out + matvec(C, v)
 
         return hvp
@@ -151,9 +159,15 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
             if projection is True:
                 return dense_direction(b, assembled(A_psd, C))
             # "auto": the exact Hessian; Cholesky of an indefinite one gives non-finite values
-            dx, k, res = dense_direction(b, assembled(A_exact, C))
-            return lax.cond(jnp.all(jnp.isfinite(dx)), lambda: (dx, k, res),
-                            lambda: dense_direction(b, assembled(A_psd, C)))
+            def first_finite(*tries):
+                dx, k, res = tries[0]()
+                if len(tries) == 1:
+                    return dx, k, res
+                return lax.cond(jnp.all(jnp.isfinite(dx)), lambda: (dx, k, res), lambda: first_finite(*tries[1:]))
+
+            return first_finite(lambda: dense_direction(b, assembled(A_exact, C)),
+                                lambda: dense_direction(b, assembled(A_exact, C, 1.0 + SHIFT)),
+                                lambda: dense_direction(b, assembled(A_psd, C)))
         Minv = preconditioner(A_psd, C)  # an SPD preconditioner in every mode
         if projection is True:
             return cg_direction(b, blocks_hvp(A_psd, C), guess, Minv, tol)[:3]
@@ -161,11 +175,15 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
             return cg_direction(b, lambda v: jax.jvp(grad, (w,), (v,))[1], guess, Minv, tol)[:3]
         dx, k, res, broke = cg_direction(b, blocks_hvp(A_exact, C), guess, Minv, tol)
 
-        def projected():
+        def projected(k):
             dx2, k2, res2, _ = cg_direction(b, blocks_hvp(A_psd, C), guess, Minv, tol)
             return dx2, k + k2, res2
 
-        return lax.cond(broke, projected, lambda: (dx, k, res))
+        def shifted():
+            dx2, k2, res2, broke2 = cg_direction(b, blocks_hvp(A_exact, C, 1.0 + SHIFT), guess, Minv, tol)
+            return lax.cond(broke2, lambda: projected(k + k2), lambda: (dx2, k + k2, res2))
+
+        return lax.cond(broke, shifted, lambda: (dx, k, res))
 
     def first_step(w, dx):
         """1, or the largest step that crosses no collider's surface (IPC's CCD line search)."""
