@@ -25,8 +25,8 @@ BETA, GAMMA = 0.5, 1e-4
 #: first retried on the exact Hessian plus this many times the inertia term ``M / h^2``
 #: (a Levenberg-Marquardt shift in the mass metric, which keeps the springs' curvature),
 #: and only if that is still indefinite on the Hessian with every block clamped.  On scene C
-#: k = 1e5 (float64) the clamped Hessian alone left Newton creeping for 30-50 iterations at a
-#: relative gradient of 1e-6-1e-5 on some steps; see the README's stiff-cloth section.
+#: k = 1e5 (float64) the clamped Hessian alone left Newton creeping for over 30 iterations of
+#: one step at a relative gradient of 1e-6-1e-5; see the README's stiff-cloth section.
 SHIFT = 1.0
 
 
@@ -158,32 +158,35 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
         if solver == "dense":
             if projection is True:
                 return dense_direction(b, assembled(A_psd, C))
-            # "auto": the exact Hessian; Cholesky of an indefinite one gives non-finite values
-            def first_finite(*tries):
-                dx, k, res = tries[0]()
-                if len(tries) == 1:
-                    return dx, k, res
-                return lax.cond(jnp.all(jnp.isfinite(dx)), lambda: (dx, k, res), lambda: first_finite(*tries[1:]))
 
-            return first_finite(lambda: dense_direction(b, assembled(A_exact, C)),
-                                lambda: dense_direction(b, assembled(A_exact, C, 1.0 + SHIFT)),
-                                lambda: dense_direction(b, assembled(A_psd, C)))
+            def dense_try(A, inertia=1.0):  # Cholesky of an indefinite Hessian gives non-finite values
+                dx, k, res = dense_direction(b, assembled(A, C, inertia))
+                return dx, k, res, ~jnp.all(jnp.isfinite(dx))
+
+            return first_definite(lambda: dense_try(A_exact), lambda: dense_try(A_exact, 1.0 + SHIFT),
+                                  lambda: dense_try(A_psd))
         Minv = preconditioner(A_psd, C)  # an SPD preconditioner in every mode
         if projection is True:
             return cg_direction(b, blocks_hvp(A_psd, C), guess, Minv, tol)[:3]
         if projection is False:  # the exact Hessian, through the autodiff Hessian-vector product
             return cg_direction(b, lambda v: jax.jvp(grad, (w,), (v,))[1], guess, Minv, tol)[:3]
-        dx, k, res, broke = cg_direction(b, blocks_hvp(A_exact, C), guess, Minv, tol)
+        return first_definite(lambda: cg_direction(b, blocks_hvp(A_exact, C), guess, Minv, tol),
+                              lambda: cg_direction(b, blocks_hvp(A_exact, C, 1.0 + SHIFT), guess, Minv, tol),
+                              lambda: cg_direction(b, blocks_hvp(A_psd, C), guess, Minv, tol))
 
-        def projected(k):
-            dx2, k2, res2, _ = cg_direction(b, blocks_hvp(A_psd, C), guess, Minv, tol)
+    def first_definite(*tries):
+        """``project_psd="auto"``: the first direction of ``tries`` (thunks returning
+        ``(dx, k, res, indefinite)``) whose Hessian was not found indefinite, the last one
+        regardless; solver iterations summed over the tries run."""
+        dx, k, res, indefinite = tries[0]()
+        if len(tries) == 1:
+            return dx, k, res
+
+        def rest():
+            dx2, k2, res2 = first_definite(*tries[1:])
             return dx2, k + k2, res2
 
-        def shifted():
-            dx2, k2, res2, broke2 = cg_direction(b, blocks_hvp(A_exact, C, 1.0 + SHIFT), guess, Minv, tol)
-            return lax.cond(broke2, lambda: projected(k + k2), lambda: (dx2, k + k2, res2))
-
-        return lax.cond(broke, shifted, lambda: (dx, k, res))
+        return lax.cond(indefinite, rest, lambda: (dx, k, res))
 
     def first_step(w, dx):
         """1, or the largest step that crosses no collider's surface (IPC's CCD line search)."""
