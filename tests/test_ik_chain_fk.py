@@ -114,3 +114,40 @@ def test_default_dtype_is_float32_and_x64_gives_float64():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.split() == ["float32", "float32", "float64", "float64"]
+
+
+def test_arc_lean_matches_shortest_arc_and_is_safe_where_degenerate():
+    """The batched CCD sweep's arc: the shortest arc (as ``from_two_vectors``) on generic
+    pairs, accurate next to a half-turn, and the identity, with finite gradients, on zero
+    and exactly opposite vectors."""
+    from jaxsim.ik import _quat
+
+    rng = np.random.default_rng(3)
+    a, b = rng.normal(size=(2, 3, 200)) * rng.uniform(0.01, 10.0, size=(2, 1, 200))
+    lean = np.array(_quat.arc_lean(tuple(a), tuple(b)))
+    ref = np.array(_quat.from_two_vectors(tuple(a), tuple(b)))
+    np.testing.assert_allclose(lean, ref, atol=1e-12)
+    # 1e-7 rad short of a half-turn: q_w = sin(1e-7 / 2) to full relative precision
+    u = np.array([0.6, 0.8, 0.0])
+    v = -np.cos(1e-7) * u + np.sin(1e-7) * np.array([-0.8, 0.6, 0.0])
+    q = np.array(_quat.arc_lean(tuple(3.0 * u), tuple(0.5 * v)))
+    np.testing.assert_allclose(q[0], np.sin(0.5e-7), rtol=1e-8)
+    np.testing.assert_allclose(np.array(_quat.rotate(tuple(q), tuple(u))), v, atol=1e-15)
+    # with a half-turn axis: exactly opposite -> the half-turn, 1e-7 short of it -> the arc
+    axis = (jnp.array(-0.8), jnp.array(0.6), jnp.array(0.0))
+    q = np.array(_quat.arc_lean(tuple(3.0 * u), tuple(-0.5 * u), axis))
+    np.testing.assert_allclose(q, [0.0, -0.8, 0.6, 0.0], atol=1e-15)
+    q = np.array(_quat.arc_lean(tuple(3.0 * u), tuple(0.5 * v), axis))
+    np.testing.assert_allclose(np.array(_quat.rotate(tuple(q), tuple(u))), v, atol=1e-15)
+    pairs = (((0.0, 0.0, 0.0), (1.0, 2.0, 3.0)), ((1.0, 2.0, 3.0), (0.0, 0.0, 0.0)),
+             ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0)), ((1.0, -2.0, 0.5), (-2.0, 4.0, -1.0)))
+    for dtype in (np.float32, np.float64):
+        for x, y in pairs:
+            x, y = jnp.array(x, dtype), jnp.array(y, dtype)
+            q = np.array(_quat.arc_lean(tuple(x), tuple(y)))
+            np.testing.assert_allclose(q, [1.0, 0.0, 0.0, 0.0], atol=2 * np.finfo(dtype).eps)
+            if not (np.any(x) and np.any(y)):  # a zero vector: the identity, axis or not
+                q = np.array(_quat.arc_lean(tuple(x), tuple(y), tuple(a.astype(dtype) for a in axis)))
+                np.testing.assert_allclose(q, [1.0, 0.0, 0.0, 0.0], atol=2 * np.finfo(dtype).eps)
+            g = jax.grad(lambda x, y: sum(c.sum() for c in _quat.arc_lean(tuple(x), tuple(y))), argnums=(0, 1))(x, y)
+            assert all(np.isfinite(np.asarray(gi)).all() for gi in g)

@@ -107,6 +107,23 @@ def test_fabrik_rotation_rebuild_is_the_world_shortest_arc():
             np.testing.assert_allclose(got[b, J - 1], l0[J - 1], atol=1e-12)
 
 
+@pytest.mark.parametrize("unroll", [True, False])
+def test_fabrik_rotation_rebuild_folds_a_bone_back(unroll):
+    """Positions where a bone points exactly against its rest direction (a straight chain
+    folded back on itself, in float32 and float64): the rebuilt rotations reproduce them
+    (the half-turn, not the identity)."""
+    for dtype in (np.float32, np.float64):
+        chain = ik.straight_chain(np.ones(3, dtype), direction=(0, 1, 0))
+        P = np.array([[0, 0, 0], [0, 1, 0], [0, 0, 0], [0, 1, 0]], dtype)  # bones 1 and 2 reversed, then back
+        L0 = [tuple(jnp.asarray(c) for c in q) for q in np.asarray(chain.rest_rotations())]
+        pos = [tuple(jnp.asarray(c) for c in p) for p in P]
+        if not unroll:
+            L0, pos = jnp.asarray(np.asarray(chain.rest_rotations())), jnp.asarray(P)
+        L = _fabrik.rotations_from_positions(chain.offsets, L0, pos, (), unroll=unroll)
+        got = np.asarray(ik.fk(chain, _joints.stack(L) if unroll else L).positions)
+        np.testing.assert_allclose(got, P, atol=4 * np.finfo(dtype).eps)
+
+
 def test_lab_curves_float64_every_frame_converges():
     arm = ik.lab_arm()
     assert arm.offsets.dtype == np.float64

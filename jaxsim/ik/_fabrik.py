@@ -98,7 +98,9 @@ def rotations_from_positions(offsets, local0, positions, batch_shape, *, unroll:
     the wanted bone ``P_{i+1} - P_i`` taken into the parent's *new* frame,
     ``w = R(g_{i-1})^T (P_{i+1} - P_i)``.  The new local rotation is the shortest arc
     from ``c`` to ``w`` times ``L0_i`` (the shortest arc in world space, seen from the
-    parent).  With a start pose shared by the batch, ``c`` is one vector per joint.
+    parent), by :func:`_quat.arc_lean` with the half-turn about a perpendicular of ``c``
+    where ``w`` is opposite to it.  With a start pose shared by the batch, ``c`` and its
+    perpendicular are one vector per joint.
     The end joint (no child bone) keeps its old local rotation.
 
     Args:
@@ -118,7 +120,8 @@ def rotations_from_positions(offsets, local0, positions, batch_shape, *, unroll:
         bone_rest = _quat.rotate(l0, _quat.unstack(offsets[i + 1]))
         want = _quat.sub(_joints.get(positions, i + 1), _joints.get(positions, i))
         want = _quat.rotate(_quat.conj(g_parent), want)
-        local = _quat.renormalize(_quat.mul(_quat.from_two_vectors(bone_rest, want), l0))
+        arc = _quat.arc_lean(bone_rest, want, _quat.perpendicular(bone_rest))
+        local = _quat.renormalize(_quat.mul(arc, l0))
         return _joints.put(L, i, local), _quat.mul(g_parent, local)
 
     L, _ = _joints.loop(0, J - 1, body, (local0, ident), unroll=unroll)
