@@ -139,3 +139,41 @@ def test_batched_scenes_carry_aggregates():
     assert np.all(np.asarray(info.converged))
     alone, _ = C.rollout(b, C.State.at_rest(b), 1 / 30, 2, integ)
     np.testing.assert_allclose(states.x[1], alone.x, atol=1e-9)
+
+
+def test_newton_trace_logs_every_iteration_and_changes_nothing():
+    """``ImplicitEuler(trace=True)``: the same steps and counts as without it; one entry per
+    Newton iteration taken (NaN / -1 after), whose CG iterations and halvings sum to the
+    step's, whose last relative gradient is the step's, and whose Hessian codes show the
+    shifted fallback on the stiff 12x12 grid's first step.  Without it the compiled step
+    writes no log."""
+    c = stiff_grid(11, k=1e5)
+    s0 = C.State.at_rest(c)
+    out = {}
+    for trace in (False, True):
+        integ = C.ImplicitEuler(solver="cg", trace=trace)
+        out[trace] = jax.jit(lambda s, integ=integ: C.rollout(c, s, 1 / 30, 2, integ))(s0)
+    (x0, i0), (x1, i1) = out[False], out[True]
+    assert i0.trace is None
+    np.testing.assert_array_equal(x0.x, x1.x)
+    for name in ("newton_iters", "cg_iters", "backtracks", "rel_grad"):
+        np.testing.assert_array_equal(getattr(i0, name), getattr(i1, name))
+    t = i1.trace
+    assert t.rel.shape == (2, 20)
+    for k in range(2):
+        n = int(i1.newton_iters[k])
+        assert np.all(np.isfinite(t.rel[k, :n])) and np.all(np.isnan(t.rel[k, n:]))
+        assert np.all(t.cg[k, n:] == -1) and np.all(t.hessian[k, n:] == -1)
+        assert int(np.sum(t.cg[k, :n])) == int(i1.cg_iters[k])
+        assert int(np.sum(t.backtracks[k, :n])) == int(i1.backtracks[k])
+        assert float(t.rel[k, n - 1]) == float(i1.rel_grad[k])
+        assert float(t.alpha[k, n - 1]) == float(i1.step_size[k])
+    assert set(np.asarray(t.hessian[0, : int(i1.newton_iters[0])]).tolist()) == {0, 1}
+    clamped = C.ImplicitEuler(solver="cg", project_psd=True, trace=True)
+    _, info = C.step(c, s0, 1 / 30, clamped)
+    assert set(np.asarray(info.trace.hessian[: int(info.newton_iters)]).tolist()) == {0}
+
+    def updates(integ):
+        return str(jax.make_jaxpr(lambda s: C.step(c, s, 1 / 30, integ))(s0)).count("dynamic_update_slice")
+
+    assert updates(C.ImplicitEuler(solver="cg")) == 0 < updates(C.ImplicitEuler(solver="cg", trace=True))

@@ -7,8 +7,8 @@ import sys
 from PIL import Image
 
 FIGURES = ["ik_humanoid.png", "ik_error_vs_iterations.png", "ik_error_vs_time.png", "ik_iterations_hist.png", "ik_jitter.png",
-           "cloth_pareto.png", "cloth_stability_map.png", "cloth_cost_growth.png"]
-SECTIONS = ["IK 1.", "IK 2.", "IK 3.", "IK 4.", "IK 5.", "Cloth 1.", "Cloth 2.", "Cloth 3.", "Cloth 4."]
+           "cloth_pareto.png", "cloth_stability_map.png", "cloth_cost_growth.png", "cloth_newton_log.png"]
+SECTIONS = ["IK 1.", "IK 2.", "IK 3.", "IK 4.", "IK 5.", "Cloth 1.", "Cloth 2.", "Cloth 3.", "Cloth 4.", "Cloth 6."]
 
 
 def test_quick_report(tmp_path):

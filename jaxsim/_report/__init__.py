@@ -13,7 +13,7 @@ def run(out: str = "jaxsim-report", quick: bool = False) -> int:
     jax.config.update("jax_enable_x64", True)  # float64 references; float32 cases are built explicitly
     import matplotlib
 
-    from . import _cloth, _contact, _humanoid, _ik, _limits
+    from . import _cloth, _contact, _humanoid, _ik, _limits, _newton_log
     from ._doc import Doc
 
     doc = Doc(out, quick)
@@ -28,6 +28,7 @@ def run(out: str = "jaxsim-report", quick: bool = False) -> int:
     _limits.limits_section(doc)
     _cloth.run(doc)
     _contact.contact_section(doc)
+    _newton_log.newton_log_section(doc)
     doc.md(f"Total wall time: {time.perf_counter() - t0:.0f} s.")
     path = doc.write()
     doc.progress(f"wrote {os.path.abspath(path)} and {len(doc.figures)} figures")

@@ -77,6 +77,10 @@ class ImplicitEuler:
         iteration (``newton_iters=1``, the lab's linearised step).
       cg_max_iters: PCG iteration cap per Newton iteration.
       max_backtracks: line-search halvings before giving up on a step.
+      trace: log every Newton iteration in ``StepInfo.trace`` (a ``NewtonTrace``:
+        objective, relative gradient, step, line search, CG iterations and which
+        Hessian gave the direction).  Off by default: the log is written inside the
+        Newton loop.
     """
 
     solver: str = "auto"
@@ -90,6 +94,7 @@ class ImplicitEuler:
     cg_forcing: float = 1e-2
     cg_max_iters: int = 500
     max_backtracks: int = 30
+    trace: bool = False
 
     def __post_init__(self):
         if not isinstance(self.solver, str) or self.solver not in SOLVERS:
@@ -108,6 +113,7 @@ class ImplicitEuler:
         if self.rtol is not None:
             set_("rtol", check_real("rtol", self.rtol, minimum=0.0))
         set_("line_search", check_bool("line_search", self.line_search))
+        set_("trace", check_bool("trace", self.trace))
         if self.project_psd != "auto":
             set_("project_psd", check_bool("project_psd (True, False or 'auto')", self.project_psd))
 

@@ -16,6 +16,7 @@ from ._coarse import coarse_factor, two_level
 from ._integrators import ImplicitEuler
 from ._linsolve import block_inverse, dense_solve, pcg
 from ._scene import spring_diff, spring_sum
+from ._trace import NewtonTrace
 from ._vec import matvec
 
 #: Armijo constants of the backtracking line search (lab Algorithm 2).
@@ -49,6 +50,7 @@ class NewtonState:
       res: ``()`` relative residual of the last linear solve.
       done: ``()`` bool, the loop has stopped.
       fail: ``()`` bool, a step produced non-finite values (and was not taken).
+      trace: the per-iteration log with ``ImplicitEuler(trace=True)``, else ``None``.
     """
 
     w: jax.Array
@@ -63,6 +65,7 @@ class NewtonState:
     res: jax.Array
     done: jax.Array
     fail: jax.Array
+    trace: NewtonTrace | None = None
 
 
 def particle_blocks(p: pr.StepProblem, C=None):
@@ -115,7 +118,7 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
         H = H * f3[:, None] * f3[None, :] + jnp.diag(1.0 - f3)
         dx = dense_solve(H, b.reshape(-1))
         res = _safe_ratio(jnp.linalg.norm(H @ dx - b.reshape(-1)), jnp.linalg.norm(b))
-        return dx.reshape(N, 3), jnp.int32(0), res
+        return dx.reshape(N, 3), jnp.int32(0), res, jnp.int32(0)
 
     def assembled(A, C, inertia=1.0):
         H = en.assemble(c, A) + jnp.diag(inertia * jnp.repeat(c.mass, 3) / h**2)
@@ -148,6 +151,7 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
         return two_level(c.aggregates, c.num_aggregates, factor, jacobi, restricted(blocks_hvp(A_psd, C)), free)
 
     def newton_direction(w, gvec, guess, tol):
+        """``(dx, cg iterations, residual, index into _trace.HESSIANS)``."""
         b = -gvec
         if solver == "dense" and projection is False:
             return dense_direction(b, jax.hessian(objective)(w).reshape(3 * N, 3 * N))
@@ -160,16 +164,16 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
                 return dense_direction(b, assembled(A_psd, C))
 
             def dense_try(A, inertia=1.0):  # Cholesky of an indefinite Hessian gives non-finite values
-                dx, k, res = dense_direction(b, assembled(A, C, inertia))
+                dx, k, res, _ = dense_direction(b, assembled(A, C, inertia))
                 return dx, k, res, ~jnp.all(jnp.isfinite(dx))
 
             return first_definite(lambda: dense_try(A_exact), lambda: dense_try(A_exact, 1.0 + SHIFT),
                                   lambda: dense_try(A_psd))
         Minv = preconditioner(A_psd, C)  # an SPD preconditioner in every mode
         if projection is True:
-            return cg_direction(b, blocks_hvp(A_psd, C), guess, Minv, tol)[:3]
+            return cg_direction(b, blocks_hvp(A_psd, C), guess, Minv, tol)[:3] + (jnp.int32(0),)
         if projection is False:  # the exact Hessian, through the autodiff Hessian-vector product
-            return cg_direction(b, lambda v: jax.jvp(grad, (w,), (v,))[1], guess, Minv, tol)[:3]
+            return cg_direction(b, lambda v: jax.jvp(grad, (w,), (v,))[1], guess, Minv, tol)[:3] + (jnp.int32(0),)
         return first_definite(lambda: cg_direction(b, blocks_hvp(A_exact, C), guess, Minv, tol),
                               lambda: cg_direction(b, blocks_hvp(A_exact, C, 1.0 + SHIFT), guess, Minv, tol),
                               lambda: cg_direction(b, blocks_hvp(A_psd, C), guess, Minv, tol))
@@ -177,16 +181,16 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
     def first_definite(*tries):
         """``project_psd="auto"``: the first direction of ``tries`` (thunks returning
         ``(dx, k, res, indefinite)``) whose Hessian was not found indefinite, the last one
-        regardless; solver iterations summed over the tries run."""
+        regardless, with the index of that try; solver iterations summed over the tries run."""
         dx, k, res, indefinite = tries[0]()
         if len(tries) == 1:
-            return dx, k, res
+            return dx, k, res, jnp.int32(0)
 
         def rest():
-            dx2, k2, res2 = first_definite(*tries[1:])
-            return dx2, k + k2, res2
+            dx2, k2, res2, i2 = first_definite(*tries[1:])
+            return dx2, k + k2, res2, i2 + 1
 
-        return lax.cond(indefinite, rest, lambda: (dx, k, res))
+        return lax.cond(indefinite, rest, lambda: (dx, k, res, jnp.int32(0)))
 
     def first_step(w, dx):
         """1, or the largest step that crosses no collider's surface (IPC's CCD line search)."""
@@ -228,7 +232,7 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
         tol = integ.cg_tol
         if integ.cg_forcing > 0 and integ.newton_iters > 1:  # inexact Newton (Eisenstat & Walker 1996)
             tol = jnp.maximum(integ.cg_tol, jnp.minimum(integ.cg_forcing, s.rel))
-        dx, k_cg, res = newton_direction(s.w, s.grad, s.guess, tol)
+        dx, k_cg, res, which = newton_direction(s.w, s.grad, s.guess, tol)
         dx, a, k_ls, g_new, gvec = line_search(s.w, s.g, s.grad, dx)
         step = a * dx  # dx is 0 on pins
         w_new = s.w + step
@@ -240,9 +244,12 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
         stalled = dmax <= 4 * eps * jnp.max(jnp.abs(w_new * free))  # nothing left that the dtype can resolve
         done = (small_step & (rel <= rtol)) | stalled | (rel <= 4 * eps) | ~ok
         keep = lambda new, old: jnp.where(ok, new, old)  # noqa: E731
+        trace = s.trace
+        if trace is not None:
+            trace = trace.record(s.it, g=g_new, rel=rel, step=dmax / h, alpha=a, backtracks=k_ls, cg=k_cg, hessian=which)
         return NewtonState(w=keep(w_new, s.w), g=keep(g_new, s.g), grad=keep(gvec, s.grad), rel=keep(rel, s.rel),
                            guess=keep(step, jnp.zeros_like(step)), it=s.it + 1, cg=s.cg + k_cg, bt=s.bt + k_ls,
-                           alpha=a, res=res, done=done, fail=s.fail | ~ok)
+                           alpha=a, res=res, done=done, fail=s.fail | ~ok, trace=trace)
 
     w0 = p.start
     f0, g0 = value_and_grad(w0)
@@ -250,5 +257,6 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
     z = jnp.zeros((), dtype)
     s0 = NewtonState(w=w0, g=f0, grad=g0, rel=pr.relative_gradient(g0, w0, p), guess=h * p.v0 * free,
                      it=jnp.int32(0), cg=jnp.int32(0), bt=jnp.int32(0), alpha=z, res=z,
-                     done=jnp.array(False), fail=jnp.array(False))
+                     done=jnp.array(False), fail=jnp.array(False),
+                     trace=NewtonTrace.empty(integ.newton_iters, dtype) if integ.trace else None)
     return lax.while_loop(lambda s: (s.it < integ.newton_iters) & ~s.done, body, s0)

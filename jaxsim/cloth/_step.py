@@ -19,6 +19,7 @@ from ._integrators import ExplicitEuler, ImplicitEuler
 from ._newton import newton
 from ._colliders import count_inside, describe_inside
 from ._scene import Cloth, State
+from ._trace import NewtonTrace
 
 
 @pytree_dataclass
@@ -45,6 +46,8 @@ class StepInfo:
         masses and rest lengths ``> 0``, stiffness and damping ``>= 0``).  Only traced
         inputs can fail it, since concrete ones are checked before tracing; an invalid
         step is not taken.
+      trace: ``NewtonTrace`` of the step's Newton iterations with
+        ``ImplicitEuler(trace=True)``, else ``None``.
     """
 
     newton_iters: jax.Array
@@ -57,6 +60,7 @@ class StepInfo:
     converged: jax.Array
     stable: jax.Array
     valid: jax.Array
+    trace: NewtonTrace | None = None
 
 
 def valid_inputs(cloth: Cloth, dt):
@@ -95,7 +99,7 @@ def _implicit(cloth: Cloth, state: State, dt, integ: ImplicitEuler, prev=None):
     gnorm = jnp.linalg.norm(s.grad)
     info = StepInfo(newton_iters=s.it, cg_iters=s.cg, grad_norm=jnp.where(jnp.isfinite(gnorm), gnorm, jnp.inf),
                     rel_grad=s.rel, step_size=s.alpha, backtracks=s.bt, residual=s.res,
-                    converged=ok & (s.rel <= rtol), stable=ok, valid=valid)
+                    converged=ok & (s.rel <= rtol), stable=ok, valid=valid, trace=s.trace)
     return State(x, v), info
 
 
