@@ -246,7 +246,8 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
         keep = lambda new, old: jnp.where(ok, new, old)  # noqa: E731
         trace = s.trace
         if trace is not None:
-            trace = trace.record(s.it, g=g_new, rel=rel, step=dmax / h, alpha=a, backtracks=k_ls, cg=k_cg, hessian=which)
+            trace = trace.record(s.it, g=keep(g_new, s.g), rel=keep(rel, s.rel), step=jnp.where(ok, dmax / h, 0.0),
+                                 alpha=a, backtracks=k_ls, cg=k_cg, hessian=which)  # a failed step is not taken
         return NewtonState(w=keep(w_new, s.w), g=keep(g_new, s.g), grad=keep(gvec, s.grad), rel=keep(rel, s.rel),
                            guess=keep(step, jnp.zeros_like(step)), it=s.it + 1, cg=s.cg + k_cg, bt=s.bt + k_ls,
                            alpha=a, res=res, done=done, fail=s.fail | ~ok, trace=trace)

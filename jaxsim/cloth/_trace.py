@@ -20,7 +20,9 @@ class NewtonTrace:
     Attributes:
       g: objective ``g(w)`` after the iteration (J).
       rel: relative gradient after the iteration (``StepInfo.rel_grad``'s measure).
-      step: ``max|alpha dx| / h``, the lab's step test (m/s).
+      step: ``max|alpha dx| / h``, the lab's step test (m/s).  An iteration whose step
+        came out non-finite is not taken (``StepInfo.stable`` is then False): it logs
+        step 0 and the previous ``g`` and ``rel``.
       alpha: the line search's step size.
       backtracks: the line search's halvings.
       cg: PCG iterations of the iteration, summed over its tries (0 with Cholesky).
