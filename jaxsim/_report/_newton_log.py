@@ -16,6 +16,12 @@ def _scene_c(n: int, k: float):
     return C.grid(n - 1, 0.2, mass=1.0 / n**2, stiffness=k, gravity=9.8, dtype=np.float64)
 
 
+#: The per-iteration log tables' columns and formats.
+LOG_COLUMNS = {"it": "iteration", "g": "g", "rel": "rel", "step": "step", "alpha": "alpha", "bt": "bt", "cg": "CG",
+               "hessian": "Hessian"}
+LOG_FORMATS = {"g": ".10e", "rel": ".2e", "step": ".2e", "alpha": ".3g"}
+
+
 def _log_rows(info, k, names=C.HESSIANS):
     t = info.trace
     rows = []
@@ -67,9 +73,7 @@ def newton_log_section(doc: Doc) -> None:
            "`CG` the PCG iterations (summed over the tries), `Hessian` which one gave the direction: "
            f"the exact Hessian {used['exact']} times, the shifted one {used['shifted']} times, the clamped one "
            f"{used['clamped']} times.")
-    doc.table("cloth_newton_log_auto", auto_rows,
-              {"it": "iteration", "g": "g", "rel": "rel", "step": "step", "alpha": "alpha", "bt": "bt", "cg": "CG",
-               "hessian": "Hessian"}, {"g": ".10e", "rel": ".2e", "step": ".2e", "alpha": ".3g"})
+    doc.table("cloth_newton_log_auto", auto_rows, LOG_COLUMNS, LOG_FORMATS)
     last = clamp_rows[-1]
     doc.md(f"The same step with every block clamped (`project_psd=True`): {len(clamp_rows)} Newton iterations, "
            f"{int(clamp.cg_iters)} CG, final relative gradient {last['rel']:.2e} "
@@ -79,9 +83,7 @@ def newton_log_section(doc: Doc) -> None:
            f"falls by a factor of {rate:.2f} per iteration, where the exact Hessian's last iterations square it.  "
            "First and last iterations:")
     shown = clamp_rows if len(clamp_rows) <= 12 else clamp_rows[:6] + clamp_rows[-6:]
-    doc.table("cloth_newton_log_clamped", shown,
-              {"it": "iteration", "g": "g", "rel": "rel", "step": "step", "alpha": "alpha", "bt": "bt", "cg": "CG",
-               "hessian": "Hessian"}, {"g": ".10e", "rel": ".2e", "step": ".2e", "alpha": ".3g"})
+    doc.table("cloth_newton_log_clamped", shown, LOG_COLUMNS, LOG_FORMATS)
     fig, ax = fig_axes()
     ax = ax[0, 0]
     for name, rs in (("auto (default)", auto_rows), ("clamped (project_psd=True)", clamp_rows)):

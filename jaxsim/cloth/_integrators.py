@@ -59,8 +59,8 @@ class ImplicitEuler:
         Hessian they make is not positive definite (PCG meets non-positive curvature,
         or Cholesky fails), that iteration's direction is recomputed on the exact
         Hessian with the inertia term doubled (``_newton.SHIFT``), and if that is
-        still indefinite, with every block projected.  ``True``: always clamp each spring block's negative
-        (compression) eigenvalue at 0 (the lab's choice; on stiff, light cloth it turns
+        still indefinite, with every block projected.  ``True``: always clamp each
+        spring block's negative (compression) eigenvalue at 0 (the lab's choice; on stiff, light cloth it turns
         Newton's quadratic convergence into linear).  ``False``: never project.
       preconditioner: PCG's preconditioner.  ``"jacobi"`` (default): the 3x3 diagonal
         blocks.  ``"two_level"``: block Jacobi around a coarse Galerkin solve on at most

@@ -114,11 +114,12 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
     f3 = free.repeat(3, axis=1).reshape(-1)
 
     def dense_direction(b, H):
-        """Cholesky on ``H (3N, 3N)`` with pinned rows and columns replaced by the identity."""
+        """Cholesky on ``H (3N, 3N)`` with pinned rows and columns replaced by the identity;
+        ``(dx, 0, res, indefinite)``: Cholesky of an indefinite ``H`` gives non-finite values."""
         H = H * f3[:, None] * f3[None, :] + jnp.diag(1.0 - f3)
         dx = dense_solve(H, b.reshape(-1))
         res = _safe_ratio(jnp.linalg.norm(H @ dx - b.reshape(-1)), jnp.linalg.norm(b))
-        return dx.reshape(N, 3), jnp.int32(0), res, jnp.int32(0)
+        return dx.reshape(N, 3), jnp.int32(0), res, ~jnp.all(jnp.isfinite(dx))
 
     def assembled(A, C, inertia=1.0):
         H = en.assemble(c, A) + jnp.diag(inertia * jnp.repeat(c.mass, 3) / h**2)
@@ -154,34 +155,31 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
         """``(dx, cg iterations, residual, index into _trace.HESSIANS)``."""
         b = -gvec
         if solver == "dense" and projection is False:
-            return dense_direction(b, jax.hessian(objective)(w).reshape(3 * N, 3 * N))
+            return first_definite(lambda: dense_direction(b, jax.hessian(objective)(w).reshape(3 * N, 3 * N)))
         parts = pr.spring_parts(w, p)
         A_exact = pr.blocks(w, p, project_psd=False, parts=parts)
         A_psd = pr.blocks(w, p, project_psd=True, parts=parts)
         C = None if p.contact is None else ct.blocks(p.displacement(w), p.x0, c, p.contact, free)  # PSD-projected
         if solver == "dense":
             if projection is True:
-                return dense_direction(b, assembled(A_psd, C))
-
-            def dense_try(A, inertia=1.0):  # Cholesky of an indefinite Hessian gives non-finite values
-                dx, k, res, _ = dense_direction(b, assembled(A, C, inertia))
-                return dx, k, res, ~jnp.all(jnp.isfinite(dx))
-
-            return first_definite(lambda: dense_try(A_exact), lambda: dense_try(A_exact, 1.0 + SHIFT),
-                                  lambda: dense_try(A_psd))
+                return first_definite(lambda: dense_direction(b, assembled(A_psd, C)))
+            return first_definite(lambda: dense_direction(b, assembled(A_exact, C)),
+                                  lambda: dense_direction(b, assembled(A_exact, C, 1.0 + SHIFT)),
+                                  lambda: dense_direction(b, assembled(A_psd, C)))
         Minv = preconditioner(A_psd, C)  # an SPD preconditioner in every mode
         if projection is True:
-            return cg_direction(b, blocks_hvp(A_psd, C), guess, Minv, tol)[:3] + (jnp.int32(0),)
+            return first_definite(lambda: cg_direction(b, blocks_hvp(A_psd, C), guess, Minv, tol))
         if projection is False:  # the exact Hessian, through the autodiff Hessian-vector product
-            return cg_direction(b, lambda v: jax.jvp(grad, (w,), (v,))[1], guess, Minv, tol)[:3] + (jnp.int32(0),)
+            return first_definite(lambda: cg_direction(b, lambda v: jax.jvp(grad, (w,), (v,))[1], guess, Minv, tol))
         return first_definite(lambda: cg_direction(b, blocks_hvp(A_exact, C), guess, Minv, tol),
                               lambda: cg_direction(b, blocks_hvp(A_exact, C, 1.0 + SHIFT), guess, Minv, tol),
                               lambda: cg_direction(b, blocks_hvp(A_psd, C), guess, Minv, tol))
 
     def first_definite(*tries):
-        """``project_psd="auto"``: the first direction of ``tries`` (thunks returning
-        ``(dx, k, res, indefinite)``) whose Hessian was not found indefinite, the last one
-        regardless, with the index of that try; solver iterations summed over the tries run."""
+        """The first direction of ``tries`` (thunks returning ``(dx, k, res, indefinite)``)
+        whose Hessian was not found indefinite, the last one regardless, with the index of
+        that try; solver iterations summed over the tries run.  ``project_psd="auto"`` has
+        three tries (exact, shifted, clamped), the other settings one."""
         dx, k, res, indefinite = tries[0]()
         if len(tries) == 1:
             return dx, k, res, jnp.int32(0)

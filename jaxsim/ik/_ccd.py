@@ -10,8 +10,6 @@ only changes frames below it, so ``G_{i-1}`` and ``G_i`` are still current when 
 
 from __future__ import annotations
 
-import math
-
 import jax.numpy as jnp
 
 from . import _joints, _quat
@@ -95,7 +93,7 @@ def ccd_sweep_frames(offsets, target, frames, root):
         a = _quat.sub(end, P[i])
         arcs[i] = _quat.arc_lean(a, _quat.sub(target, P[i]))
         end = _quat.add(P[i], _quat.rotate(arcs[i], a))
-    big = math.prod(jnp.broadcast_shapes(*(jnp.shape(c) for c in frames[0]))) >= NEWTON_RENORM_MIN_BATCH
+    big = jnp.size(frames[0][0]) >= NEWTON_RENORM_MIN_BATCH  # the loop carries full-batch frames
     renorm = _quat.renormalize_near_unit if big else _quat.renormalize
     new, C = [], None
     for i in range(J - 1):

@@ -199,8 +199,9 @@ def arc_lean(a, b, half_turn_axis=None):
     """
     dt = _dtype(a)
     e = 16.0 * float(jnp.finfo(dt).max) ** (-1.0 / 3.0)
-    ua = scale(jax.lax.rsqrt(sqnorm(a) + e * e), a)
-    ub = scale(jax.lax.rsqrt(sqnorm(b) + e * e), b)
+    sa, sb = sqnorm(a), sqnorm(b)
+    ua = scale(jax.lax.rsqrt(sa + e * e), a)
+    ub = scale(jax.lax.rsqrt(sb + e * e), b)
     w = 0.5 * sqnorm(add(ua, ub))
     c = cross(ua, ub)
     n2 = (w + e) * (w + e) + sqnorm(c)
@@ -209,7 +210,7 @@ def arc_lean(a, b, half_turn_axis=None):
     if half_turn_axis is None:
         return q
     # |q|^2 = 2 (1 + cos θ) before the offsets: below 16 eps^2 the pair is opposite to 4 eps rad
-    opposite = (n2 <= 16.0 * float(jnp.finfo(dt).eps) ** 2) & (sqnorm(a) > e * e) & (sqnorm(b) > e * e)
+    opposite = (n2 <= 16.0 * float(jnp.finfo(dt).eps) ** 2) & (sa > e * e) & (sb > e * e)
     zero = jnp.zeros_like(w)
     return where(opposite, (zero, *(x + zero for x in half_turn_axis)), q)
 
