@@ -30,7 +30,7 @@ from jaxsim.cloth import _energy as en  # noqa: E402
 from jaxsim.cloth._scene import spring_diff, spring_sum  # noqa: E402
 from jaxsim.cloth._vec import matvec  # noqa: E402
 from jaxsim.cloth._newton import block_jacobi  # noqa: E402
-from jaxsim.cloth._problem import StepProblem, incremental_potential  # noqa: E402
+from jaxsim.cloth._problem import StepProblem, gradient, incremental_potential, objective, spring_terms  # noqa: E402
 
 
 def main() -> None:
@@ -55,7 +55,9 @@ def main() -> None:
     pieces = {
         "no-op (x + 1)": (lambda x: x + 1.0, x),
         "objective g(w)": (lambda u: incremental_potential(u, p), u),
-        "gradient of g": (lambda u: jax.grad(incremental_potential)(u, p), u),
+        "gradient of g (jax.grad)": (lambda u: jax.grad(incremental_potential)(u, p), u),
+        "g, its gradient and spring terms, radial form (Newton's evaluation)":
+            (lambda u: (lambda t: (objective(u, p, t), gradient(u, p, t), t))(spring_terms(u, p)), u),
         "spring blocks, radial form by autodiff (+ PSD)": (lambda x: en.element_blocks(c, x, None, project_psd=True), x),
         "spring blocks, closed form (reference only)": (analytic_blocks, x),
         "CG operator H p (grid operator)": (lambda p: spring_sum(c, matvec(A, spring_diff(c, p))), x),
@@ -66,13 +68,22 @@ def main() -> None:
     for name, (f, arg) in pieces.items():
         t = time_call(jax.jit(f), arg, repeats=50)
         rows.append({"piece": name, "ms": 1e3 * t["run_s"], "compile_s": t["compile_s"]})
-        print(f"{name:45s} {1e3 * t['run_s']:.3f} ms", flush=True)
+        print(f"{name:70s} {1e3 * t['run_s']:.3f} ms", flush=True)
     for name in ("CG operator H p (grid operator)", "CG operator H p (general, gathers)"):
         f = pieces[name][0]
         loop = jax.jit(lambda v, f=f: jax.lax.fori_loop(0, 50, lambda k, v: v + 1e-6 * f(v), v))
         t = time_call(loop, x, repeats=20)
         rows.append({"piece": name + ", in a loop", "ms": 1e3 * t["run_s"] / 50, "compile_s": t["compile_s"]})
         print(f"{name + ', in a loop':45s} {1e3 * t['run_s'] / 50:.3f} ms", flush=True)
+    # PCG's dot products: XLA:CPU runs the product of two (N, 3) operands as its own loop
+    # before a tree reduction, far slower than a dot at N = 1024
+    y = x[::-1]
+    for name, dot in (("dot sum(u * v), in a loop", lambda u, v: jnp.sum(u * v)),
+                      ("dot vdot(u, v), in a loop", lambda u, v: jnp.vdot(u.reshape(-1), v.reshape(-1)))):
+        loop = jax.jit(lambda v, dot=dot: jax.lax.fori_loop(0, 200, lambda k, v: v * (1.0 + 1e-9 * dot(v, y)), v))
+        t = time_call(loop, x, repeats=20)
+        rows.append({"piece": name, "ms": 1e3 * t["run_s"] / 200, "compile_s": t["compile_s"]})
+        print(f"{name:70s} {1e3 * t['run_s'] / 200:.4f} ms", flush=True)
     write("cloth_profile", {"scene": "B 32x32 float64", "rows": rows})
 
 

@@ -132,6 +132,31 @@ def test_radial_blocks_equal_element_hessian():
     assert np.all(np.isfinite(np.asarray(z)))
 
 
+@pytest.mark.parametrize("scene", ["lab", "undamped", "contact"])
+def test_radial_gradient_and_scale_equal_autodiff_of_the_objective(scene):
+    """Newton's gradient (per-spring forces ``psi'(s) e`` + damping, summed at both ends)
+    is ``jax.grad`` of the one objective, and its force scale is the one computed alone."""
+    from jaxsim.cloth import _problem as pr
+
+    c = C.lab_cloth(dtype=np.float64)
+    if scene == "undamped":
+        c = C.replace(c, damping=0.0)
+    if scene == "contact":
+        c = C.grid(7, 0.1, origin=(-0.35, 0.5, -0.35), gravity=9.8, pins=[0], dtype=np.float64,
+                   colliders=(C.Sphere(np.array([0.0, 0.2, 0.0]), 0.29, friction=0.3),))
+    rng = np.random.default_rng(3)
+    x0 = perturbed(c, 0.01)
+    v0 = rng.normal(size=x0.shape)
+    p = pr.StepProblem.build(c, jnp.asarray(x0), jnp.asarray(v0), jnp.asarray(1 / 60))
+    assert (p.e0 is None) == (scene == "undamped") and (p.contact is None) == (scene != "contact")
+    w = -p.prediction + 0.003 * rng.normal(size=x0.shape)
+    t = pr.spring_terms(w, p)
+    ref = jax.grad(pr.incremental_potential)(w, p)
+    np.testing.assert_allclose(pr.gradient(w, p, t), ref, rtol=1e-12, atol=1e-12 * np.abs(ref).max())
+    np.testing.assert_allclose(pr.objective(w, p, t), pr.incremental_potential(w, p), rtol=1e-14)
+    np.testing.assert_allclose(pr.force_scale(w, p, t), pr.force_scale(w, p), rtol=1e-14)
+
+
 def test_projected_blocks_are_psd(lab):
     x = jnp.asarray(perturbed(lab, 0.15, 2))
     A = C.element_blocks(lab, x, project_psd=True)

@@ -79,22 +79,36 @@ def test_converged_means_small_relative_gradient():
     np.testing.assert_allclose(float(_problem.relative_gradient(g, w, p)), float(info.rel_grad), rtol=1e-6)
 
 
+def _stiffness_gradient(dtype, k0):
+    """d(mean height after 5 steps)/dk on the lab cloth, with the steps' flags."""
+    c = C.lab_cloth(dtype=dtype)
+
+    def loss(k):
+        states, infos = C.rollout(C.replace(c, stiffness=k * jnp.ones_like(c.stiffness)), C.State.at_rest(c),
+                                  1 / 60, 5, C.ImplicitEuler(solver="cg"))
+        return jnp.mean(states.x[-1, :, 1]), infos
+
+    (_, infos), g = jax.value_and_grad(loss, has_aux=True)(jnp.asarray(k0, dtype))
+    trusted = np.asarray(infos.converged).all() and (np.asarray(infos.cond_bound) * np.finfo(dtype).eps < 1).all()
+    return float(g), trusted
+
+
 def test_float32_gradient_at_extreme_stiffness_has_float64_sign_or_is_flagged():
-    def grad_and_flags(dtype):
-        c = C.lab_cloth(dtype=dtype)
-
-        def loss(k):
-            states, infos = C.rollout(C.replace(c, stiffness=k * jnp.ones_like(c.stiffness)), C.State.at_rest(c),
-                                      1 / 60, 5, C.ImplicitEuler(solver="cg"))
-            return jnp.mean(states.x[-1, :, 1]), infos
-
-        (_, infos), g = jax.value_and_grad(loss, has_aux=True)(jnp.asarray(1e12, dtype))
-        return float(g), np.asarray(infos.converged)
-
-    g64, _ = grad_and_flags(np.float64)
-    g32, conv32 = grad_and_flags(np.float32)
+    g64, _ = _stiffness_gradient(np.float64, 1e12)
+    g32, trusted32 = _stiffness_gradient(np.float32, 1e12)
     assert np.isfinite(g64) and np.isfinite(g32)
-    assert np.sign(g32) == np.sign(g64) or not conv32.all()
+    assert np.sign(g32) == np.sign(g64) or not trusted32
+    assert not trusted32  # k h^2/m = 3e8: the step's linear system is singular to float32
+
+
+def test_float32_gradient_below_the_conditioning_bound_matches_float64():
+    """The flag is not raised where float32 derivatives hold: at k = 1e6 (cond_bound * eps
+    = 4e-4) the float32 derivative is trusted and within 5% of float64's (measured 1.8%;
+    1.3-1.7% from k = 1e4 to 1e8, 5% at k = 1e10 where the flag is raised)."""
+    g64, trusted64 = _stiffness_gradient(np.float64, 1e6)
+    g32, trusted32 = _stiffness_gradient(np.float32, 1e6)
+    assert trusted64 and trusted32
+    np.testing.assert_allclose(g32, g64, rtol=5e-2)
 
 
 def test_explicit_blow_up_is_flagged_before_the_state_flies_off():

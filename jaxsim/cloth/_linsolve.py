@@ -28,7 +28,9 @@ def pcg(apply_A, b, x0, apply_Minv, *, tol, max_iters: int):
       ``(x, iterations, relative_residual, broke)``; ``broke`` is True when a
       non-positive curvature ``p.Ap <= 0`` was met (the operator is not positive definite).
     """
-    dot = lambda u, v: jnp.sum(u * v)  # noqa: E731
+    # a dot rather than sum(u * v): XLA:CPU emits the product of two (N, 3) operands as its
+    # own loop before a tree reduction, at up to 7 us per product for N = 1024 (0.7 us as a dot)
+    dot = lambda u, v: jnp.vdot(u.reshape(-1), v.reshape(-1))  # noqa: E731
     bnorm = jnp.sqrt(dot(b, b))
     thresh = tol * bnorm
     r = b - apply_A(x0)

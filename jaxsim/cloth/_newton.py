@@ -48,6 +48,8 @@ class NewtonState:
       bt: ``()`` int32 line-search halvings summed.
       alpha: ``()`` last line-search step size.
       res: ``()`` relative residual of the last linear solve.
+      terms: the spring terms at ``w`` (``_problem.SpringTerms``), which gave ``g``,
+        ``grad`` and ``rel`` and give the next iteration's Hessian blocks.
       done: ``()`` bool, the loop has stopped.
       fail: ``()`` bool, a step produced non-finite values (and was not taken).
       trace: the per-iteration log with ``ImplicitEuler(trace=True)``, else ``None``.
@@ -63,6 +65,7 @@ class NewtonState:
     bt: jax.Array
     alpha: jax.Array
     res: jax.Array
+    terms: pr.SpringTerms
     done: jax.Array
     fail: jax.Array
     trace: NewtonTrace | None = None
@@ -108,7 +111,11 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
     solver = integ.resolved_solver(N)
     objective = functools.partial(pr.incremental_potential, p=p)
     grad = jax.grad(objective)
-    value_and_grad = jax.value_and_grad(objective)
+
+    def evaluate(w):
+        """``(g(w), grad g(w) on free particles, spring terms at w)``: one pass over the springs."""
+        t = pr.spring_terms(w, p)
+        return pr.objective(w, p, t), pr.gradient(w, p, t) * free, t
 
     projection = integ.project_psd  # True, False or "auto"
     f3 = free.repeat(3, axis=1).reshape(-1)
@@ -151,14 +158,13 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
         factor = coarse_factor(c.aggregates, c.num_aggregates, c.springs, A_psd, particle_blocks(p, C), free[:, 0])
         return two_level(c.aggregates, c.num_aggregates, factor, jacobi, restricted(blocks_hvp(A_psd, C)), free)
 
-    def newton_direction(w, gvec, guess, tol):
+    def newton_direction(w, gvec, guess, tol, terms):
         """``(dx, cg iterations, residual, index into _trace.HESSIANS)``."""
         b = -gvec
         if solver == "dense" and projection is False:
             return first_definite(lambda: dense_direction(b, jax.hessian(objective)(w).reshape(3 * N, 3 * N)))
-        parts = pr.spring_parts(w, p)
-        A_exact = pr.blocks(w, p, project_psd=False, parts=parts)
-        A_psd = pr.blocks(w, p, project_psd=True, parts=parts)
+        A_exact = pr.blocks(w, p, project_psd=False, terms=terms)
+        A_psd = pr.blocks(w, p, project_psd=True, terms=terms)
         C = None if p.contact is None else ct.blocks(p.displacement(w), p.x0, c, p.contact, free)  # PSD-projected
         if solver == "dense":
             if projection is True:
@@ -195,15 +201,15 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
         return jnp.ones((), dtype) if p.contact is None else ct.step_bound(p.displacement(w), dx, p.x0, c, free)
 
     def line_search(w, gw, gvec, dx):
-        """``(dx, alpha, halvings, g(w + alpha dx), grad g(w + alpha dx))``.
+        """``(dx, alpha, halvings, g, grad g, spring terms)`` at ``w + alpha dx``.
 
-        The first trial is evaluated with its gradient (one forward pass for both), which
-        is the Newton loop's next gradient whenever the full step is accepted; after a
-        halving the gradient is taken once at the accepted point."""
+        The first trial is evaluated with its gradient and spring terms (one pass over
+        the springs), which are the Newton loop's next ones whenever the full step is
+        accepted; after a halving they are computed once at the accepted point."""
         dx = dx * free
         if not integ.line_search:
             a = first_step(w, dx)
-            return (dx, a, jnp.int32(0)) + value_and_grad(w + a * dx)
+            return (dx, a, jnp.int32(0)) + evaluate(w + a * dx)
         # keep every step a descent step
         slope = jnp.sum(gvec * dx)
         descent = slope < 0
@@ -222,21 +228,21 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
             a = BETA * a
             return a, k + 1, objective(w + a * dx)
 
-        g0, grad0 = value_and_grad(w + a0 * dx)
+        g0, grad0, t0 = evaluate(w + a0 * dx)
         a, k, gnew = lax.while_loop(cond, body, (a0, jnp.int32(0), g0))
-        return dx, a, k, gnew, lax.cond(k == 0, lambda: grad0, lambda: grad(w + a * dx))
+        _, gvec_new, t_new = lax.cond(k == 0, lambda: (g0, grad0, t0), lambda: evaluate(w + a * dx))
+        return dx, a, k, gnew, gvec_new, t_new
 
     def body(s: NewtonState) -> NewtonState:
         tol = integ.cg_tol
         if integ.cg_forcing > 0 and integ.newton_iters > 1:  # inexact Newton (Eisenstat & Walker 1996)
             tol = jnp.maximum(integ.cg_tol, jnp.minimum(integ.cg_forcing, s.rel))
-        dx, k_cg, res, which = newton_direction(s.w, s.grad, s.guess, tol)
-        dx, a, k_ls, g_new, gvec = line_search(s.w, s.g, s.grad, dx)
+        dx, k_cg, res, which = newton_direction(s.w, s.grad, s.guess, tol, s.terms)
+        dx, a, k_ls, g_new, gvec, terms = line_search(s.w, s.g, s.grad, dx)
         step = a * dx  # dx is 0 on pins
         w_new = s.w + step
-        gvec = gvec * free
         ok = jnp.all(jnp.isfinite(w_new)) & jnp.isfinite(g_new) & jnp.all(jnp.isfinite(gvec))
-        rel = pr.relative_gradient(gvec, w_new, p)
+        rel = pr.relative_gradient(gvec, w_new, p, terms)
         dmax = jnp.max(jnp.abs(step))
         small_step = dmax / h < integ.tol
         stalled = dmax <= 4 * eps * jnp.max(jnp.abs(w_new * free))  # nothing left that the dtype can resolve
@@ -248,14 +254,14 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
                                  alpha=a, backtracks=k_ls, cg=k_cg, hessian=which)  # a failed step is not taken
         return NewtonState(w=keep(w_new, s.w), g=keep(g_new, s.g), grad=keep(gvec, s.grad), rel=keep(rel, s.rel),
                            guess=keep(step, jnp.zeros_like(step)), it=s.it + 1, cg=s.cg + k_cg, bt=s.bt + k_ls,
-                           alpha=a, res=res, done=done, fail=s.fail | ~ok, trace=trace)
+                           alpha=a, res=res, terms=jax.tree_util.tree_map(keep, terms, s.terms), done=done,
+                           fail=s.fail | ~ok, trace=trace)
 
     w0 = p.start
-    f0, g0 = value_and_grad(w0)
-    g0 = g0 * free
+    f0, g0, t0 = evaluate(w0)
     z = jnp.zeros((), dtype)
-    s0 = NewtonState(w=w0, g=f0, grad=g0, rel=pr.relative_gradient(g0, w0, p), guess=h * p.v0 * free,
-                     it=jnp.int32(0), cg=jnp.int32(0), bt=jnp.int32(0), alpha=z, res=z,
+    s0 = NewtonState(w=w0, g=f0, grad=g0, rel=pr.relative_gradient(g0, w0, p, t0), guess=h * p.v0 * free,
+                     it=jnp.int32(0), cg=jnp.int32(0), bt=jnp.int32(0), alpha=z, res=z, terms=t0,
                      done=jnp.array(False), fail=jnp.array(False),
                      trace=NewtonTrace.empty(integ.newton_iters, dtype) if integ.trace else None)
     return lax.while_loop(lambda s: (s.it < integ.newton_iters) & ~s.done, body, s0)

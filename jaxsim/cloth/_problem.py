@@ -124,59 +124,138 @@ class StepProblem:
         return self.dv + spring_diff(self.cloth, w)
 
 
-def incremental_potential(w, p: StepProblem):
-    """``g(w)`` of the module doc (J), for a deviation ``w (N, 3)`` (m) from the prediction."""
+@pytree_dataclass
+class SpringTerms:
+    """The springs' share of ``g`` at one ``w``, computed once and shared by the objective,
+    its gradient, the force scale and the Hessian blocks.
+
+    A spring's potential depends on its length only, so everything Newton needs from it
+    follows from the scalar spring law's derivatives (``jax.grad`` of
+    ``_energy.spring_potential``) and the unit direction: the force on the spring's
+    second end is ``psi'(s) e`` (the radial form of the gradient; ``_energy.radial_parts``
+    is that of the Hessian blocks), plus the damping force ``(d/h)(e0 . dd) e0``.
+
+    Attributes:
+      e: ``(S, 3)`` unit spring directions (0 for a zero-length spring).
+      s: ``(S,)`` stretches ``l - L`` (m).
+      dpsi: ``(S,)`` ``psi'(s)`` (N).
+      along: ``(S,)`` ``psi''(s)`` (N/m).
+      across: ``(S,)`` ``psi'(s) / l`` (N/m; 0 at zero length).
+      damp: ``(S,)`` ``e0 . dd``, the change of each spring along its frozen direction
+        (m); ``None`` for an undamped scene.
+    """
+
+    e: jax.Array
+    s: jax.Array
+    dpsi: jax.Array
+    along: jax.Array
+    across: jax.Array
+    damp: jax.Array | None
+
+
+def spring_terms(w, p: StepProblem) -> SpringTerms:
+    """:class:`SpringTerms` at the deviation ``w (N, 3)``."""
+    dd = p.spring_change(w)
+    s = p.s0 + en.stretch_increment(p.d0, p.l0, dd)
+    k = p.cloth.stiffness
+    e, along, across = en.radial_parts(p.d0 + dd, s, k)
+    dpsi = jax.vmap(jax.grad(en.spring_potential))(s, k)
+    return SpringTerms(e, s, dpsi, along, across, None if p.e0 is None else dot(p.e0, dd))
+
+
+def _contact_potential(w, p: StepProblem):
+    return ct.potential(p.displacement(w), p.x0, p.cloth, p.contact, p.free)
+
+
+def objective(w, p: StepProblem, t: SpringTerms):
+    """``g(w)`` (J) from the spring terms ``t`` at ``w``."""
     c = p.cloth
-    m = c.mass[:, None]
-    inertia = 0.5 / p.h**2 * jnp.sum(m * w * w)  # with gravity's work
-    springs = jnp.sum(en.step_element(p.spring_change(w), p.d0, p.l0, p.s0, c.stiffness, p.e0, p.d_over_h))
-    g = inertia + springs
+    g = 0.5 / p.h**2 * jnp.sum(c.mass[:, None] * w * w)  # inertia, with gravity's work
+    g = g + jnp.sum(en.spring_potential(t.s, c.stiffness))
+    if t.damp is not None:
+        g = g + 0.5 * p.d_over_h * jnp.sum(t.damp * t.damp)
     if p.contact is not None:
-        g = g + ct.potential(p.displacement(w), p.x0, c, p.contact, p.free)
+        g = g + _contact_potential(w, p)
     return g
 
 
-def force_scale(w, p: StepProblem):
+def incremental_potential(w, p: StepProblem):
+    """``g(w)`` of the module doc (J), for a deviation ``w (N, 3)`` (m) from the prediction.
+
+    The one definition of the step's objective: Newton's gradient and Hessian blocks are
+    its derivatives in the radial form (:class:`SpringTerms`), tested equal to
+    ``jax.grad`` and ``jax.hessian`` of this function.
+    """
+    return objective(w, p, spring_terms(w, p))
+
+
+def gradient(w, p: StepProblem, t: SpringTerms):
+    """``grad g(w)`` ``(N, 3)`` (N) from the spring terms ``t`` at ``w``: inertia plus the
+    per-spring forces ``psi'(s) e (+ (d/h)(e0 . dd) e0)`` summed at both ends (no
+    scatter on a grid or with ``Cloth.incidence``), plus the contact terms' ``jax.grad``."""
+    c = p.cloth
+    f = t.dpsi[:, None] * t.e
+    if t.damp is not None:
+        f = f + (p.d_over_h * t.damp)[:, None] * p.e0
+    out = c.mass[:, None] / p.h**2 * w + spring_sum(c, f)
+    if p.contact is not None:
+        out = out + jax.grad(_contact_potential)(w, p)
+    return out
+
+
+def force_scale(w, p: StepProblem, t: SpringTerms | None = None):
     """``(N,)`` size of the terms that make up ``grad g`` at each particle (N).
 
     Inertia ``m/h^2 |u - h v^n|`` (``u - h v^n = w + h^2 g``) plus gravity ``m |g|`` plus
     the magnitudes of the spring (and damping) forces and of the contact forces acting on
     the particle.  The gradient is judged small relative to the largest of these, which is
-    what float rounding can resolve.
+    what float rounding can resolve.  ``t``: the spring terms at ``w`` when already computed.
     """
     c = p.cloth
-    dd = p.spring_change(w)
-    t = jnp.abs(c.stiffness * (p.s0 + en.stretch_increment(p.d0, p.l0, dd)))
-    if p.e0 is not None:
-        t = t + jnp.abs(p.d_over_h * dot(p.e0, dd))
+    t = spring_terms(w, p) if t is None else t
+    f = jnp.abs(t.dpsi)
+    if t.damp is not None:
+        f = f + jnp.abs(p.d_over_h * t.damp)
     m = c.mass
     inertia = m / p.h**2 * en._length(w + p.h**2 * c.gravity)
-    scale = inertia + m * en._length(c.gravity) + spring_sum(c, t, signed=False)
+    scale = inertia + m * en._length(c.gravity) + spring_sum(c, f, signed=False)
     if p.contact is not None:
         scale = scale + ct.force_magnitudes(p.displacement(w), p.x0, c, p.contact, p.free)
     return scale
 
 
-def relative_gradient(gvec, w, p: StepProblem):
+def relative_gradient(gvec, w, p: StepProblem, t: SpringTerms | None = None):
     """``max_i |grad_i g| / max_i scale_i`` over free particles (dimensionless, never NaN)."""
     free = p.free[:, 0] > 0
     gmax = jnp.max(jnp.where(free, en._length(gvec), 0.0))
-    smax = jnp.max(jnp.where(free, force_scale(w, p), 0.0))
+    smax = jnp.max(jnp.where(free, force_scale(w, p, t), 0.0))
     rel = gmax / jnp.maximum(smax, tiny(w.dtype))
     return jnp.where(jnp.isnan(rel), jnp.inf, rel)
 
 
-def spring_parts(w, p: StepProblem):
-    """The springs' radial parts ``(e, psi'', psi'/l)`` at ``w`` (``_energy.radial_parts``)."""
-    dd = p.spring_change(w)
-    return en.radial_parts(p.d0 + dd, p.s0 + en.stretch_increment(p.d0, p.l0, dd), p.cloth.stiffness)
+def condition_bound(p: StepProblem, t: SpringTerms):
+    """``()`` an upper bound on the condition number of ``g``'s Hessian (springs and damping).
+
+    Gershgorin's bound for the 3x3 block rows of ``M/h^2 + sum_s A_s`` with each spring
+    block projected PSD: ``max_i (m_i/h^2 + 2 sum_{s at i} |A_s|) / min_i m_i/h^2``, over
+    free particles, ``|A_s| <= max(psi'', psi'/l, 0) + d/h``.  Contact terms are left out.
+    """
+    c = p.cloth
+    a = jnp.maximum(jnp.maximum(t.along, t.across), 0.0)
+    if t.damp is not None:
+        a = a + p.d_over_h
+    inertia = c.mass / p.h**2
+    free = p.free[:, 0] > 0
+    hi = jnp.max(jnp.where(free, inertia + 2.0 * spring_sum(c, a, signed=False), 0.0))
+    lo = jnp.min(jnp.where(free, inertia, jnp.inf))
+    return jnp.where(jnp.any(free), hi / lo, 1.0)
 
 
-def blocks(w, p: StepProblem, *, project_psd: bool, parts=None):
+def blocks(w, p: StepProblem, *, project_psd: bool, terms: SpringTerms | None = None):
     """``(S, 3, 3)`` Hessian blocks of the spring and damping terms of ``g`` at ``w``.
 
-    ``parts``: :func:`spring_parts` at ``u`` when already computed (the exact and the
+    ``terms``: :func:`spring_terms` at ``w`` when already computed (the exact and the
     projected blocks share them)."""
-    parts = spring_parts(w, p) if parts is None else parts
+    t = spring_terms(w, p) if terms is None else terms
     doh = p.d_over_h if p.e0 is not None else None
-    return en.radial_blocks(*parts, p.e0, doh, project_psd=project_psd)
+    return en.radial_blocks(t.e, t.along, t.across, p.e0, doh, project_psd=project_psd)

@@ -46,6 +46,12 @@ class StepInfo:
         masses and rest lengths ``> 0``, stiffness and damping ``>= 0``).  Only traced
         inputs can fail it, since concrete ones are checked before tracing; an invalid
         step is not taken.
+      cond_bound: implicit: an upper bound on the condition number of the step's
+        Hessian (springs and damping, ``_problem.condition_bound``) at the returned
+        positions; explicit: 1.  The derivative of an implicit step (the implicit
+        function theorem's linear solve) is reliable only while ``cond_bound *
+        finfo(dtype).eps < 1``: beyond, the linear system is singular to the dtype's
+        precision (float32 from ``k h^2 / m`` of about 1e6), even when ``converged``.
       trace: ``NewtonTrace`` of the step's Newton iterations with
         ``ImplicitEuler(trace=True)``, else ``None``.
     """
@@ -60,6 +66,7 @@ class StepInfo:
     converged: jax.Array
     stable: jax.Array
     valid: jax.Array
+    cond_bound: jax.Array
     trace: NewtonTrace | None = None
 
 
@@ -80,7 +87,8 @@ def _explicit(cloth: Cloth, state: State, dt, integ: ExplicitEuler):
     ok = ok & valid
     z = jnp.zeros((), state.x.dtype)
     info = StepInfo(newton_iters=jnp.int32(0), cg_iters=jnp.int32(0), grad_norm=z, rel_grad=z, step_size=z,
-                    backtracks=jnp.int32(0), residual=z, converged=ok, stable=ok, valid=valid)
+                    backtracks=jnp.int32(0), residual=z, converged=ok, stable=ok, valid=valid,
+                    cond_bound=jnp.ones((), state.x.dtype))
     return State(jnp.where(valid, new.x, state.x), jnp.where(valid, new.v, state.v)), info
 
 
@@ -89,7 +97,8 @@ def _implicit(cloth: Cloth, state: State, dt, integ: ImplicitEuler, prev=None):
     valid = valid_inputs(cloth, dt)
     p = pr.StepProblem.build(cloth, x0, v0, h, prev)
     rtol = integ.resolved_rtol(x0.dtype)
-    s = newton(jax.tree_util.tree_map(lax.stop_gradient, p), integ, rtol)
+    p_const = jax.tree_util.tree_map(lax.stop_gradient, p)
+    s = newton(p_const, integ, rtol)
     w = solution(integ, s.w, p)
     free = p.free > 0
     u = jnp.where(free, p.displacement(w), 0.0)  # pins do not move
@@ -99,7 +108,8 @@ def _implicit(cloth: Cloth, state: State, dt, integ: ImplicitEuler, prev=None):
     gnorm = jnp.linalg.norm(s.grad)
     info = StepInfo(newton_iters=s.it, cg_iters=s.cg, grad_norm=jnp.where(jnp.isfinite(gnorm), gnorm, jnp.inf),
                     rel_grad=s.rel, step_size=s.alpha, backtracks=s.bt, residual=s.res,
-                    converged=ok & (s.rel <= rtol), stable=ok, valid=valid, trace=s.trace)
+                    converged=ok & (s.rel <= rtol), stable=ok, valid=valid,
+                    cond_bound=pr.condition_bound(p_const, s.terms), trace=s.trace)
     return State(x, v), info
 
 
