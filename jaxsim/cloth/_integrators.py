@@ -66,7 +66,7 @@ class ImplicitEuler:
         blocks.  ``"two_level"``: block Jacobi around a coarse Galerkin solve on at most
         64 aggregates of particles (``jaxsim.cloth._coarse``); two extra operator
         products per CG iteration, for 8-14x fewer CG iterations on stiff, light cloth
-        (``k h^2 / m`` in the hundreds; scene C in the README runs 2-3.4x faster), slower
+        (``k h^2 / m`` in the hundreds; scene C in the README runs 1.4-2.4x faster), slower
         on soft cloth.
       cg_tol: relative residual at which PCG stops (the floor of the forcing term below).
       cg_forcing: inexact Newton's forcing term (Eisenstat & Walker 1996): each
