@@ -156,6 +156,7 @@ def test_invalid_parameters_under_jit_are_flagged_not_taken():
     for mass, k, dt in ((-1.0, 100.0, 1 / 60), (1.0, -100.0, 1 / 60), (1.0, 100.0, -1 / 60)):
         s, info = go(jnp.full(c.num_particles, mass), jnp.full(c.num_springs, k), jnp.asarray(dt))
         assert not bool(info.valid) and not bool(info.stable) and not bool(info.converged)
+        assert not np.isnan(float(info.cond_bound)) and float(info.cond_bound) >= 1.0
         np.testing.assert_array_equal(np.asarray(s.x), np.asarray(s0.x))
     s, info = go(c.mass, c.stiffness, jnp.asarray(1 / 60))
     assert bool(info.valid) and bool(info.stable)

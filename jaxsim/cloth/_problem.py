@@ -239,6 +239,7 @@ def condition_bound(p: StepProblem, t: SpringTerms):
     Gershgorin's bound for the 3x3 block rows of ``M/h^2 + sum_s A_s`` with each spring
     block projected PSD: ``max_i (m_i/h^2 + 2 sum_{s at i} |A_s|) / min_i m_i/h^2``, over
     free particles, ``|A_s| <= max(psi'', psi'/l, 0) + d/h``.  Contact terms are left out.
+    ``inf`` where the bound is not a number of at least 1 (invalid masses under ``jit``).
     """
     c = p.cloth
     a = jnp.maximum(jnp.maximum(t.along, t.across), 0.0)
@@ -248,7 +249,8 @@ def condition_bound(p: StepProblem, t: SpringTerms):
     free = p.free[:, 0] > 0
     hi = jnp.max(jnp.where(free, inertia + 2.0 * spring_sum(c, a, signed=False), 0.0))
     lo = jnp.min(jnp.where(free, inertia, jnp.inf))
-    return jnp.where(jnp.any(free), hi / lo, 1.0)
+    r = hi / lo
+    return jnp.where(jnp.any(free), jnp.where(r >= 1.0, r, jnp.inf), 1.0)
 
 
 def blocks(w, p: StepProblem, *, project_psd: bool, terms: SpringTerms | None = None):
