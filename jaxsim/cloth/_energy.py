@@ -37,18 +37,23 @@ def spring_potential(stretch, k):
     return 0.5 * k * stretch * stretch
 
 
+def element_potential(stretch, k, damp=None, d_over_h=None):
+    """Potential of one spring in the implicit step (J) from its stretch ``s`` (m) and,
+    when damped, its change ``damp = e0 . dd`` along the frozen direction (m):
+    ``psi(s) + d/(2h) damp^2`` (module doc)."""
+    v = spring_potential(stretch, k)
+    if damp is not None:
+        v = v + 0.5 * d_over_h * damp * damp
+    return v
+
+
 def step_element(dd, d0, l0, s0, k, e0=None, d_over_h=None):
     """Potential of one spring in the implicit step, as a function of ``dd = du_j - du_i``.
 
-    ``psi(s0 + (|d0 + dd| - l0))`` plus, when ``e0`` is given, the frozen-direction
-    damping potential ``d/(2h) (e0 . dd)^2`` (module doc).  ``s0 = l0 - L`` is the
-    stretch at the start of the step.
+    :func:`element_potential` of the stretch ``s0 + (|d0 + dd| - l0)`` and, when ``e0``
+    is given, of ``e0 . dd``.  ``s0 = l0 - L`` is the stretch at the start of the step.
     """
-    v = spring_potential(s0 + stretch_increment(d0, l0, dd), k)
-    if e0 is not None:
-        s = dot(e0, dd)
-        v = v + 0.5 * d_over_h * s * s
-    return v
+    return element_potential(s0 + stretch_increment(d0, l0, dd), k, None if e0 is None else dot(e0, dd), d_over_h)
 
 
 def spring_energy(cloth: Cloth, x):
@@ -101,8 +106,9 @@ def radial_parts(d, s, k):
       k: ``(S,)`` stiffnesses (N/m).
 
     Returns:
-      ``(e (S, 3), along (S,), across (S,))``: the unit directions (0 for a zero-length
-      spring), ``psi''`` (N/m) and ``psi'/l`` (N/m, 0 at zero length).
+      ``(e (S, 3), dpsi (S,), along (S,), across (S,))``: the unit directions (0 for a
+      zero-length spring), ``psi'`` (N), ``psi''`` (N/m) and ``psi'/l`` (N/m, 0 at zero
+      length).
     """
     dpsi = jax.grad(spring_potential)
     d2psi = jax.grad(dpsi)
@@ -111,8 +117,9 @@ def radial_parts(d, s, k):
     ok = l > 0
     safe = jnp.where(ok, l, 1.0)
     e = jnp.where(ok[:, None], d / safe[:, None], 0.0)
-    across = jnp.where(ok, jax.vmap(dpsi)(s, k) / safe, 0.0)
-    return e, along, across
+    slope = jax.vmap(dpsi)(s, k)
+    across = jnp.where(ok, slope / safe, 0.0)
+    return e, slope, along, across
 
 
 def radial_blocks(e, along, across, e0=None, d_over_h=None, *, project_psd: bool):
@@ -148,8 +155,8 @@ def blocks_from_elements(d0, l0, s0, k, dd, e0=None, d_over_h=None, *, project_p
     Returns:
       ``(S, 3, 3)`` blocks.
     """
-    parts = radial_parts(d0 + dd, s0 + stretch_increment(d0, l0, dd), k)
-    return radial_blocks(*parts, e0, d_over_h, project_psd=project_psd)
+    e, _, along, across = radial_parts(d0 + dd, s0 + stretch_increment(d0, l0, dd), k)
+    return radial_blocks(e, along, across, e0, d_over_h, project_psd=project_psd)
 
 
 def element_blocks(cloth: Cloth, x, damping_terms=None, *, project_psd: bool):

@@ -158,8 +158,7 @@ def spring_terms(w, p: StepProblem) -> SpringTerms:
     dd = p.spring_change(w)
     s = p.s0 + en.stretch_increment(p.d0, p.l0, dd)
     k = p.cloth.stiffness
-    e, along, across = en.radial_parts(p.d0 + dd, s, k)
-    dpsi = jax.vmap(jax.grad(en.spring_potential))(s, k)
+    e, dpsi, along, across = en.radial_parts(p.d0 + dd, s, k)
     return SpringTerms(e, s, dpsi, along, across, None if p.e0 is None else dot(p.e0, dd))
 
 
@@ -171,9 +170,7 @@ def objective(w, p: StepProblem, t: SpringTerms):
     """``g(w)`` (J) from the spring terms ``t`` at ``w``."""
     c = p.cloth
     g = 0.5 / p.h**2 * jnp.sum(c.mass[:, None] * w * w)  # inertia, with gravity's work
-    g = g + jnp.sum(en.spring_potential(t.s, c.stiffness))
-    if t.damp is not None:
-        g = g + 0.5 * p.d_over_h * jnp.sum(t.damp * t.damp)
+    g = g + jnp.sum(en.element_potential(t.s, c.stiffness, t.damp, p.d_over_h))
     if p.contact is not None:
         g = g + _contact_potential(w, p)
     return g

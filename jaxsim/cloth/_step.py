@@ -51,7 +51,8 @@ class StepInfo:
         positions; explicit: 1.  The derivative of an implicit step (the implicit
         function theorem's linear solve) is reliable only while ``cond_bound *
         finfo(dtype).eps < 1``: beyond, the linear system is singular to the dtype's
-        precision (float32 from ``k h^2 / m`` of about 1e6), even when ``converged``.
+        precision (float32 on the lab cloth somewhere between ``k h^2 / m`` = 3e4, where
+        ``cond_bound * eps`` = 0.04, and 3e6, where it is 4), even when ``converged``.
       trace: ``NewtonTrace`` of the step's Newton iterations with
         ``ImplicitEuler(trace=True)``, else ``None``.
     """
