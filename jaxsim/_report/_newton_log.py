@@ -42,7 +42,10 @@ def newton_log_section(doc: Doc) -> None:
            "(`ImplicitEuler(trace=True)`, `StepInfo.trace`).  With `project_psd=\"auto\"` (the default) each "
            "iteration's direction comes from the exact Hessian, or, where PCG meets negative curvature, from the "
            "exact Hessian with the inertia term doubled (**shifted**), or, where that is indefinite too, from the "
-           "Hessian with every spring block clamped (**clamped**).  `project_psd=True` always clamps (the lab's "
+           "Hessian with every spring block clamped (**clamped**).  Once the relative gradient is below 1e-3 "
+           "after an indefinite exact Hessian, Newton first tries the full step to the exact Hessian's stationary "
+           "point (**stationary**; kept if it lowers the relative gradient, else logged with step 0 and not "
+           "taken).  `project_psd=True` always clamps (the lab's "
            "choice).  The cap is lifted to 100 Newton iterations here so that each setting's count is its own "
            "(the default cap is 20).")
     settings = {"auto": C.ImplicitEuler(solver="cg", preconditioner="two_level", newton_iters=100, trace=True),
@@ -54,11 +57,13 @@ def newton_log_section(doc: Doc) -> None:
     rows = []
     for s in range(steps):
         m = int(info.newton_iters[s])
-        used = np.bincount(np.asarray(info.trace.hessian[s, :m]), minlength=3)
+        used = np.bincount(np.asarray(info.trace.hessian[s, :m]), minlength=len(C.HESSIANS))
         rows.append({"step": s + 1, "newton": m, "cg": int(info.cg_iters[s]), "exact": int(used[0]),
-                     "shifted": int(used[1]), "clamped": int(used[2]), "conv": bool(info.converged[s])})
+                     "shifted": int(used[1]), "clamped": int(used[2]), "stationary": int(used[3]),
+                     "conv": bool(info.converged[s])})
     doc.table("cloth_newton_steps", rows, {"step": "step", "newton": "Newton", "cg": "CG", "exact": "exact",
-                                          "shifted": "shifted", "clamped": "clamped", "conv": "converged"})
+                                          "shifted": "shifted", "clamped": "clamped", "stationary": "stationary",
+                                          "conv": "converged"})
     hard = int(np.argmax(np.asarray(info.newton_iters)))
     start = C.State.at_rest(c) if hard == 0 else C.State(states.x[hard - 1], states.v[hard - 1])
     _, clamp = jax.block_until_ready(C.step(c, start, dt, settings["clamped"]))
@@ -72,7 +77,7 @@ def newton_log_section(doc: Doc) -> None:
            "`step` the lab's test `max|alpha dx| / h` (m/s), `alpha` and `bt` the line search's step and halvings, "
            "`CG` the PCG iterations (summed over the tries), `Hessian` which one gave the direction: "
            f"the exact Hessian {used['exact']} times, the shifted one {used['shifted']} times, the clamped one "
-           f"{used['clamped']} times.")
+           f"{used['clamped']} times, the stationary-point step {used['stationary']} times.")
     doc.table("cloth_newton_log_auto", auto_rows, LOG_COLUMNS, LOG_FORMATS)
     last = clamp_rows[-1]
     doc.md(f"The same step with every block clamped (`project_psd=True`): {len(clamp_rows)} Newton iterations, "

@@ -62,7 +62,9 @@ def _solution_jvp(integ, primals, tangents):
         Minv = block_jacobi(p, pr.blocks(w_star, p, project_psd=True), C)
 
         def solve(mv, b):
-            return pcg(mv, b, jnp.zeros_like(b), Minv, tol=integ.cg_tol, max_iters=integ.cg_max_iters)[0]
+            # the solution may be a stationary point where the Hessian is indefinite
+            return pcg(mv, b, jnp.zeros_like(b), Minv, tol=integ.cg_tol, max_iters=integ.cg_max_iters,
+                       indefinite=True)[0]
 
     dw = lax.custom_linear_solve(matvec, rhs, solve, symmetric=True)
     return w_star, -dw

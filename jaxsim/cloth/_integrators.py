@@ -47,8 +47,10 @@ class ImplicitEuler:
       newton_iters: maximum Newton iterations per step.
       tol: the lab's stopping test: Newton stops once ``max|dx| / h < tol`` (m/s) and
         the gradient test below holds.  It also stops when the gradient is at rounding
-        level, or when a step is at the rounding level of the displacement (nothing
-        more can be resolved in the dtype).
+        level, when a step is at the rounding level of the displacement (nothing
+        more can be resolved in the dtype), or when the gradient test holds and an
+        iteration no longer halves the relative gradient (its noise floor, where float32
+        cannot meet the step test; ``_newton.FLOOR_RATIO``).
       rtol: the gradient test and the meaning of ``StepInfo.converged``:
         ``max_i |grad_i g| <= rtol * max_i scale_i``, with ``scale_i`` the size of the
         terms the gradient sums at particle ``i`` (inertia, gravity, spring and damping
@@ -59,7 +61,12 @@ class ImplicitEuler:
         Hessian they make is not positive definite (PCG meets non-positive curvature,
         or Cholesky fails), that iteration's direction is recomputed on the exact
         Hessian with the inertia term doubled (``_newton.SHIFT``), and if that is
-        still indefinite, with every block projected.  ``True``: always clamp each
+        still indefinite, with every block projected.  Once the relative gradient is
+        below 1e-3 and the exact Hessian was indefinite, Newton first tries the full step
+        to the exact Hessian's stationary point (PCG through negative curvature), kept if it
+        lowers the relative gradient: near a buckling cloth's saddle the shifted Hessian
+        converges only linearly, the exact one quadratically, and a stationary point of
+        (17.19) solves backward Euler's equations (``_newton.STATIONARY_REL``).  ``True``: always clamp each
         spring block's negative (compression) eigenvalue at 0 (the lab's choice; on stiff, light cloth it turns
         Newton's quadratic convergence into linear).  ``False``: never project.
       preconditioner: PCG's preconditioner.  ``"jacobi"`` (default): the 3x3 diagonal

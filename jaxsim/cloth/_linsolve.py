@@ -13,12 +13,14 @@ def dense_solve(H, b):
     return jax.scipy.linalg.cho_solve(c, b)
 
 
-def pcg(apply_A, b, x0, apply_Minv, *, tol, max_iters: int):
+def pcg(apply_A, b, x0, apply_Minv, *, tol, max_iters: int, indefinite: bool = False):
     """Preconditioned conjugate gradients (Hestenes & Stiefel; Shewchuk 1994, B3).
 
     Written here because ``jax.scipy.sparse.linalg.cg`` reports no iteration count.
     Stops when ``|r| <= tol * |b|``.  A non-positive curvature ``p.Ap <= 0`` (an
-    indefinite operator) stops the loop and keeps the last iterate.
+    indefinite operator) stops the loop and keeps the last iterate; with ``indefinite=True``
+    only ``p.Ap = 0`` does (CG on a symmetric indefinite, nonsingular operator, for the
+    stationary point rather than the minimiser of ``x.Ax/2 - b.x``).
 
     Args:
       apply_A, apply_Minv: linear maps on arrays shaped like ``b``.
@@ -26,7 +28,8 @@ def pcg(apply_A, b, x0, apply_Minv, *, tol, max_iters: int):
 
     Returns:
       ``(x, iterations, relative_residual, broke)``; ``broke`` is True when a
-      non-positive curvature ``p.Ap <= 0`` was met (the operator is not positive definite).
+      non-positive curvature ``p.Ap <= 0`` was met (the operator is not positive definite;
+      with ``indefinite=True``: a zero or non-finite ``p.Ap``).
     """
     # a dot rather than sum(u * v): XLA:CPU emits the product of two (N, 3) operands as its
     # own loop before a tree reduction; for N = 1024, 7.5 against 1.6 us per dot in a loop
@@ -47,7 +50,7 @@ def pcg(apply_A, b, x0, apply_Minv, *, tol, max_iters: int):
         x, r, z, p, rz, k, broke = s
         Ap = apply_A(p)
         pAp = dot(p, Ap)
-        broke = ~(pAp > 0)
+        broke = ~(pAp > 0) if not indefinite else ~(jnp.abs(pAp) > 0)
         alpha = jnp.where(broke, 0.0, rz / jnp.where(broke, 1.0, pAp))
         x = x + alpha * p
         r = r - alpha * Ap

@@ -9,7 +9,7 @@ from jax import lax
 from .._dataclass import pytree_dataclass
 
 #: ``NewtonTrace.hessian`` codes: which Hessian gave the iteration's direction.
-HESSIANS = ("exact", "shifted", "clamped")
+HESSIANS = ("exact", "shifted", "clamped", "stationary")
 
 
 @pytree_dataclass
@@ -21,14 +21,16 @@ class NewtonTrace:
       g: objective ``g(w)`` after the iteration (J).
       rel: relative gradient after the iteration (``StepInfo.rel_grad``'s measure).
       step: ``max|alpha dx| / h``, the lab's step test (m/s).  An iteration whose step
-        came out non-finite is not taken (``StepInfo.stable`` is then False): it logs
-        step 0 and the previous ``g`` and ``rel``.
+        came out non-finite is not taken (``StepInfo.stable`` is then False), nor is a
+        stationary-point step that did not lower the relative gradient: each logs step 0
+        and the previous ``g`` and ``rel``.
       alpha: the line search's step size.
       backtracks: the line search's halvings.
       cg: PCG iterations of the iteration, summed over its tries (0 with Cholesky).
       hessian: index into ``HESSIANS``: ``0`` the exact spring blocks (or the clamped
         ones with ``project_psd=True``), ``1`` the exact Hessian with the inertia term
-        shifted, ``2`` every block clamped (``project_psd="auto"``'s fallbacks).
+        shifted, ``2`` every block clamped (``project_psd="auto"``'s fallbacks), ``3`` the
+        exact Hessian solved for the nearby stationary point (``_newton.STATIONARY_REL``).
     """
 
     g: jax.Array
