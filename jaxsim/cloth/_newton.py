@@ -272,8 +272,6 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
         _, gvec_new, t_new = lax.cond(k == 0, lambda: (g0, grad0, t0), lambda: evaluate(w + a * dx))
         return dx, a, k, gnew, gvec_new, t_new
 
-    z = jnp.zeros((), dtype)
-
     def body(s: NewtonState) -> NewtonState:
         tol = integ.cg_tol
         if integ.cg_forcing > 0 and integ.newton_iters > 1:  # inexact Newton (Eisenstat & Walker 1996)
@@ -290,11 +288,11 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
         else:
             dx, k_cg, res, which = newton_direction(s.w, -s.grad, parts, s.guess, tol)
         dx, a, k_ls, g_new, gvec, terms = line_search(s.w, s.g, s.grad, dx, full=tried)
-        rel = pr.relative_gradient(gvec, s.w + a * dx, p, terms)
-        rejected = tried & ~(rel < STATIONARY_DECREASE * s.rel)  # not taken; the next try waits
-        below = jnp.where(rejected, STATIONARY_RETRY * s.rel, s.stationary_below)
         step = a * dx  # dx is 0 on pins
         w_new = s.w + step
+        rel = pr.relative_gradient(gvec, w_new, p, terms)
+        rejected = tried & ~(rel < STATIONARY_DECREASE * s.rel)  # not taken; the next try waits
+        below = jnp.where(rejected, STATIONARY_RETRY * s.rel, s.stationary_below)
         ok = jnp.all(jnp.isfinite(w_new)) & jnp.isfinite(g_new) & jnp.all(jnp.isfinite(gvec))
         taken = ok & ~rejected
         dmax = jnp.max(jnp.abs(step))
@@ -316,6 +314,7 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
 
     w0 = p.start
     f0, g0, t0 = evaluate(w0)
+    z = jnp.zeros((), dtype)
     s0 = NewtonState(w=w0, g=f0, grad=g0, rel=pr.relative_gradient(g0, w0, p, t0), guess=h * p.v0 * free,
                      it=jnp.int32(0), cg=jnp.int32(0), bt=jnp.int32(0), alpha=z, res=z, terms=t0,
                      indefinite=jnp.array(False), stationary_below=jnp.asarray(STATIONARY_REL, dtype),
