@@ -10,6 +10,8 @@ import time
 
 import jax
 
+from jaxsim._host_memory import retained_limit
+
 RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
 
 
@@ -55,6 +57,7 @@ def machine() -> dict:
         "cpu_count": os.cpu_count(),
         "platform": platform.platform(),
         "x64": bool(jax.config.jax_enable_x64),
+        "retained_host_memory_bytes": retained_limit(),  # jaxsim.retain_host_memory(), if called
     }
 
 

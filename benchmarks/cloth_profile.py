@@ -25,6 +25,7 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from _common import time_call, write  # noqa: E402
 
+import jaxsim  # noqa: E402
 from jaxsim import cloth as C  # noqa: E402
 from jaxsim.cloth import _energy as en  # noqa: E402
 from jaxsim.cloth._scene import spring_diff, spring_sum  # noqa: E402
@@ -34,6 +35,7 @@ from jaxsim.cloth._problem import StepProblem, gradient, incremental_potential, 
 
 
 def main() -> None:
+    jaxsim.retain_host_memory()  # benchmarks/host_memory.py: what this changes
     c = C.grid(31, 0.2)
     s = C.State.at_rest(c)
     x = s.x + 0.01 * jax.random.normal(jax.random.PRNGKey(0), s.x.shape)

@@ -50,6 +50,7 @@ import scipy.sparse.linalg as spla  # noqa: E402
 sys.path.insert(0, __import__("os").path.dirname(__file__))
 from _common import time_call, write  # noqa: E402
 
+import jaxsim  # noqa: E402
 from jaxsim import cloth as C  # noqa: E402
 
 
@@ -144,6 +145,7 @@ def contact_case(tag, mass, k, dt, n=32, steps=10):
 
 
 def main():
+    jaxsim.retain_host_memory()  # benchmarks/host_memory.py: what this changes
     ap = argparse.ArgumentParser()
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--only-contact", action="store_true", help="run the contact rows only and update the JSON")

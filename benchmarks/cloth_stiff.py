@@ -27,6 +27,7 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from _common import time_call, write  # noqa: E402
 
+import jaxsim  # noqa: E402
 from jaxsim import cloth as C  # noqa: E402
 
 N, STEPS = 32, 20
@@ -57,6 +58,7 @@ def run(n, k, dtype, projection, preconditioner, forcing=1e-2, scene="C"):
 
 
 def main() -> None:
+    jaxsim.retain_host_memory()  # benchmarks/host_memory.py: what this changes
     rows = []
     for k in (1e3, 1e5):
         for dtype in (np.float64, np.float32):

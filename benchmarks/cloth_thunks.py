@@ -33,6 +33,7 @@ from jax._src.lib import _profile_data  # noqa: E402
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from _common import write  # noqa: E402
 
+import jaxsim  # noqa: E402
 from jaxsim import cloth as C  # noqa: E402
 
 REPS = 10
@@ -91,6 +92,7 @@ def case(label, scene, dt, integ):
 
 
 def main():
+    jaxsim.retain_host_memory()  # benchmarks/host_memory.py: what this changes
     E = C.ImplicitEuler
     out = [case("B 32x32", C.grid(31, 0.2), 1 / 60, E(solver="cg", tol=1e-6, cg_tol=1e-6, cg_forcing=0.0)),
            case("C 32x32 k=1e3 two-level", C.grid(31, 0.2, mass=1.0 / 1024, stiffness=1e3, gravity=9.8), 1 / 30,

@@ -32,6 +32,9 @@ def main(argv=None) -> int:
 
         before = _out.prepare(args.out, args.command, args.force)  # before any work
         enable_compilation_cache()
+        from . import retain_host_memory
+
+        retain_host_memory()  # big cloths' scratch memory is not faulted in again every step
         if args.command == "demo":
             from ._cli.demo import run
 
