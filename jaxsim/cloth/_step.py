@@ -171,6 +171,10 @@ def step(cloth: Cloth, state: State, dt, integrator=ImplicitEuler()) -> tuple[St
     Returns:
       ``(new_state, StepInfo)`` in the scene's dtype (the state is cast to it).  Pinned
       particles keep their positions exactly.
+
+    On Linux, call ``jaxsim.retain_host_memory()`` once when stepping large cloths one
+    step per call: a float64 128x128 grid's step then stops faulting its 56 MB of scratch
+    memory in again at every call (38.7 -> 20.7 ms per step, README "Compilation and memory").
     """
     state = check_inputs(cloth, state, dt, integrator)
     return _step(cloth, state, jnp.asarray(dt, cloth.dtype), integrator)
