@@ -49,18 +49,15 @@ def build(case):
 
     if case.startswith("cloth"):
         n = int(case.split()[2].split("x")[0])
-        dtype = np.float64 if "float64" in case else np.float32
-        scene = C.grid(n - 1, 0.2)
-        scene = jax.tree_util.tree_map(lambda a: a.astype(dtype) if jnp.issubdtype(a.dtype, jnp.floating) else a,
-                                       scene)
+        scene = C.grid(n - 1, 0.2, dtype=np.float64 if "float64" in case else np.float32)
         integ = C.ImplicitEuler(solver="cg")
         warm, _ = C.rollout(scene, C.State.at_rest(scene), 1 / 60, 30, integ)
         return jax.jit(lambda s: C.step(scene, s, 1 / 60, integ)), (C.State(warm.x[-1], warm.v[-1]),)
+    from ik_throughput import random_targets  # the throughput benchmark's chain and targets
+
     chain = ik.Chain(np.asarray(ik.straight_chain(np.ones(5, np.float32), direction=(0, 1, 0)).offsets, np.float32))
-    rng = np.random.default_rng(0)
-    d = rng.normal(size=(100_000, 3))
-    t = d / np.linalg.norm(d, axis=1, keepdims=True) * 5.0 * rng.uniform(0, 1, (100_000, 1)) ** (1 / 3)
-    return jax.jit(lambda t: ik.solve(chain, t, solver="fabrik", max_iters=10, tol=0.0)), (jnp.asarray(t, jnp.float32),)
+    targets = jnp.asarray(random_targets(100_000, 5.0, np.random.default_rng(0)))
+    return jax.jit(lambda t: ik.solve(chain, t, solver="fabrik", max_iters=10, tol=0.0)), (targets,)
 
 
 def child(case, retained):

@@ -6,7 +6,7 @@ glibc's ``malloc`` serves a block larger than its mmap threshold (at most 32 MiB
 default) with a fresh ``mmap`` and gives it back with ``munmap``, so the next call
 touches every page of it again: one minor page fault per 4 KiB.  A converged float64
 step of a 128x128 cloth has 56 MB of temporaries, 13,600 faults per call, and spends
-about a third of its time in them (``benchmarks/host_memory.py``).
+over 40% of its time in them (``benchmarks/host_memory.py``).
 
 :func:`retain_host_memory` raises the thresholds from within the process.  Blocks that
 XLA's worker threads allocate come from glibc's per-thread arenas, whose heaps cannot
@@ -50,7 +50,7 @@ def retain_host_memory(limit_bytes: int = 1 << 30) -> bool:
     Raises glibc's mmap and trim thresholds (``mallopt(M_MMAP_THRESHOLD)`` and
     ``M_TRIM_THRESHOLD``) so that a compiled program's scratch memory stays mapped between
     calls instead of being returned to the system and faulted in again: a converged
-    float64 step of a 128x128 cloth takes about 20 ms instead of 30-32 ms on a 2-core CPU
+    float64 step of a 128x128 cloth takes 20 ms instead of 35 ms on a 2-core CPU
     (README, "Compilation and memory").  It covers scratch blocks up to 64 MiB; larger ones
     need the environment settings of the module doc.  Process-wide and not undone; the
     cost is that up to about ``2 * limit_bytes`` of freed memory stays with the process.

@@ -174,7 +174,7 @@ def step(cloth: Cloth, state: State, dt, integrator=ImplicitEuler()) -> tuple[St
 
     On Linux, call ``jaxsim.retain_host_memory()`` once when stepping large cloths one
     step per call: a float64 128x128 grid's step then stops faulting its 56 MB of scratch
-    memory in again at every call (38.7 -> 20.7 ms per step, README "Compilation and memory").
+    memory in again at every call (35.1 -> 20.1 ms per step, README "Compilation and memory").
     """
     state = check_inputs(cloth, state, dt, integrator)
     return _step(cloth, state, jnp.asarray(dt, cloth.dtype), integrator)
