@@ -30,7 +30,7 @@ from jaxsim import cloth as C  # noqa: E402
 from jaxsim.cloth import _energy as en  # noqa: E402
 from jaxsim.cloth._scene import spring_diff, spring_sum  # noqa: E402
 from jaxsim.cloth._vec import matvec  # noqa: E402
-from jaxsim.cloth._newton import block_jacobi  # noqa: E402
+from jaxsim.cloth._hessian import block_jacobi  # noqa: E402
 from jaxsim.cloth._problem import StepProblem, gradient, incremental_potential, objective, spring_terms  # noqa: E402
 
 

@@ -9,7 +9,7 @@ import pytest
 
 from jaxsim import cloth as C
 from jaxsim.cloth import _coarse, _problem
-from jaxsim.cloth._newton import block_jacobi, particle_blocks
+from jaxsim.cloth._hessian import block_jacobi, particle_blocks
 
 
 def stiff_grid(n, k=1e3, dtype=np.float64, pins=None):

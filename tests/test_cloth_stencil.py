@@ -6,8 +6,12 @@ import numpy as np
 import pytest
 
 from jaxsim import cloth as C
+from jaxsim.cloth import _energy as en
+from jaxsim.cloth import _planes as pl
+from jaxsim.cloth._linsolve import block_inverse
 from jaxsim.cloth._scene import spring_diff, spring_sum
 from jaxsim.cloth._stencil import Stencil, detect
+from jaxsim.cloth._vec import matvec
 from test_cloth_stability import all_eqns, step_jaxpr
 
 
@@ -61,19 +65,24 @@ def test_replacing_springs_recomputes_the_layout():
     assert C.replace(lab, stencil=fake).stencil == lab.stencil
 
 
-@pytest.mark.parametrize("shape", [(), (3,), (3, 3)])
-@pytest.mark.parametrize("signed", [True, False])
-def test_grid_operator_equals_gathers_and_numpy(shape, signed):
-    # a non-square grid with unusual families, given as a plain spring list
+def unusual_grid():
+    """A non-square grid with unusual families, given as a plain spring list."""
     st = Stencil(5, 7, ((0, -1), (-1, 0), (-1, 2), (-3, -1), (2, 1)))
     springs = st.springs()
     assert detect(springs, 35) == st
-    rng = np.random.default_rng(1)
     rest = np.stack([np.arange(35) // 7, np.zeros(35), np.arange(35) % 7], 1) * 0.1
     L = np.linalg.norm(rest[springs[:, 1]] - rest[springs[:, 0]], axis=1)
     c = C.Cloth(rest=rest, springs=springs, rest_length=L, stiffness=np.full(len(L), 10.0), mass=np.ones(35),
                 pinned=np.zeros(35, bool), gravity=np.zeros(3), damping=np.asarray(0.1))
     assert c.stencil == st
+    return c, st, springs
+
+
+@pytest.mark.parametrize("shape", [(), (3,), (3, 3)])
+@pytest.mark.parametrize("signed", [True, False])
+def test_grid_operator_equals_gathers_and_numpy(shape, signed):
+    c, st, springs = unusual_grid()
+    rng = np.random.default_rng(1)
     g, perm = permuted(c, seed=2)
     f = rng.normal(size=(len(springs),) + shape)
     ref = numpy_sum(springs, f, 35, signed)
@@ -83,8 +92,38 @@ def test_grid_operator_equals_gathers_and_numpy(shape, signed):
     np.testing.assert_array_equal(spring_diff(c, jnp.asarray(v)), v[springs[:, 1]] - v[springs[:, 0]])
 
 
+@pytest.mark.parametrize("project_psd", [False, True])
+def test_planes_equal_the_particle_layout(project_psd):
+    """PCG's planar layout (``_planes``): blocks, operator, block sums and block inverses
+    equal the ``(N, 3)`` ones, including a compressed spring's negative eigenvalue."""
+    c, st, springs = unusual_grid()
+    rng = np.random.default_rng(3)
+    S = len(springs)
+    e = rng.normal(size=(S, 3))
+    e /= np.linalg.norm(e, axis=1, keepdims=True)
+    along, across = rng.uniform(0.5, 2.0, S), rng.uniform(-1.0, 1.0, S)
+    e0 = rng.normal(size=(S, 3))
+    A = en.radial_blocks(*map(jnp.asarray, (e, along, across, e0)), 0.3, project_psd=project_psd)
+    P = pl.radial_blocks(*map(jnp.asarray, (e, along, across, e0)), 0.3, project_psd=project_psd)
+    np.testing.assert_allclose(P, A.transpose(1, 2, 0), rtol=0, atol=1e-15)
+    v = jnp.asarray(rng.normal(size=(35, 3)))
+    V = pl.to_planes(st, v)
+    np.testing.assert_array_equal(pl.from_planes(V), v)
+    ref = spring_sum(c, matvec(A, spring_diff(c, v)))
+    np.testing.assert_allclose(pl.from_planes(pl.operator(st, P, V)), ref, rtol=0, atol=1e-13)
+    D = spring_sum(c, A, signed=False) + 10.0 * jnp.eye(3)
+    np.testing.assert_allclose(pl.block_sums(st, P) + 10.0 * jnp.eye(3)[:, :, None, None],
+                               pl.particle_planes(st, D), rtol=0, atol=1e-13)
+    np.testing.assert_allclose(pl.block_inverse(pl.particle_planes(st, D)), pl.particle_planes(st, block_inverse(D)),
+                               rtol=1e-13, atol=1e-15)
+    np.testing.assert_allclose(pl.from_planes(pl.matvec(pl.particle_planes(st, D), V)), matvec(D, v),
+                               rtol=0, atol=1e-13)
+
+
 @pytest.mark.parametrize("integ", [C.ImplicitEuler(solver="cg"), C.ImplicitEuler(solver="dense"),
-                                   C.ExplicitEuler(substeps=10)], ids=["cg", "dense", "explicit"])
+                                   C.ExplicitEuler(substeps=10), C.ImplicitEuler(solver="cg", project_psd=False),
+                                   C.ImplicitEuler(solver="cg", preconditioner="two_level")],
+                         ids=["cg", "dense", "explicit", "cg-exact", "cg-two-level"])
 def test_steps_with_the_grid_operator_equal_the_general_operator(integ):
     lab = C.lab_cloth(dtype=np.float64)
     gen, _ = permuted(lab)
@@ -127,3 +166,18 @@ def test_stacked_scenes_keep_a_shared_layout():
     b = C.replace(a, stiffness=50.0)
     assert C.stack_scenes([a, b]).stencil == a.stencil
     assert C.stack_scenes([a, permuted(a)[0]]).stencil is None
+
+
+def test_contact_steps_on_planes_equal_the_general_operator():
+    """A grid over a sphere: the contact blocks join PCG's planes."""
+    c = C.grid(6, 0.05, origin=(-0.15, 0.12, -0.15), gravity=9.8, pins=[], dtype=np.float64,
+               colliders=(C.Sphere(np.zeros(3), 0.1),))
+    assert c.stencil is not None
+    gen, _ = permuted(c)
+    integ = C.ImplicitEuler(solver="cg")
+    a, ia = C.rollout(c, C.State.at_rest(c), 1 / 60, 8, integ)
+    b, ib = C.rollout(gen, C.State.at_rest(gen), 1 / 60, 8, integ)
+    assert bool(jnp.all(ia.converged))
+    assert float(jnp.min(jnp.linalg.norm(a.x[-1], axis=-1))) < 0.105  # on the sphere
+    np.testing.assert_allclose(a.x, b.x, rtol=0, atol=1e-10)
+    np.testing.assert_array_equal(ia.newton_iters, ib.newton_iters)

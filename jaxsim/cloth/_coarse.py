@@ -1,6 +1,6 @@
 """A two-level preconditioner for the Newton step's CG: block Jacobi around a coarse solve.
 
-Block Jacobi (``_newton.block_jacobi``) removes the stiffness of each particle's own
+Block Jacobi (``_hessian.block_jacobi``) removes the stiffness of each particle's own
 springs, but not the smooth, cloth-wide modes.  On stiff, light cloth (``k h^2 / m`` in
 the thousands) those modes need hundreds of CG iterations per Newton iteration.
 
@@ -85,20 +85,24 @@ def coarse_factor(ids, count: int, springs, A, diag, free):
     return jax.scipy.linalg.cho_factor(Ac, lower=True)
 
 
-def two_level(ids, count: int, factor, jacobi, operator, free):
-    """The symmetric two-level cycle of the module doc, as ``r (N, 3) -> z (N, 3)``.
+def two_level(ids, count: int, factor, jacobi, operator, free, to_layout=None, from_layout=None):
+    """The symmetric two-level cycle of the module doc, as ``r -> z`` in CG's layout.
 
     Args:
       factor: :func:`coarse_factor`.
       jacobi: ``r -> D^-1 r`` (identity on pins).
       operator: ``v -> A v`` restricted to the free particles (identity on pins).
       free: ``(N, 1)`` free mask.
+      to_layout, from_layout: ``(N, 3)`` to CG's layout and back (``_planes``); default
+        the identity.
     """
+    to_layout = to_layout or (lambda v: v)
+    from_layout = from_layout or (lambda v: v)
 
     def coarse(r):
-        rc = jax.ops.segment_sum(r * free, ids, count).reshape(-1)
+        rc = jax.ops.segment_sum(from_layout(r) * free, ids, count).reshape(-1)
         zc = jax.scipy.linalg.cho_solve(factor, rc).reshape(count, 3)
-        return zc[ids] * free
+        return to_layout(zc[ids] * free)
 
     def apply(r):
         z = jacobi(r)

@@ -17,7 +17,7 @@ from jax import lax
 from . import _contact as ct
 from . import _problem as pr
 from ._linsolve import pcg
-from ._newton import block_jacobi
+from ._hessian import block_jacobi
 
 
 def stationarity(w, p: pr.StepProblem):

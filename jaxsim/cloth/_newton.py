@@ -12,12 +12,10 @@ from .._dataclass import pytree_dataclass
 from . import _contact as ct
 from . import _energy as en
 from . import _problem as pr
-from ._coarse import coarse_factor, two_level
+from ._hessian import HessianOps
 from ._integrators import ImplicitEuler
-from ._linsolve import block_inverse, dense_solve, pcg
-from ._scene import spring_diff, spring_sum
+from ._linsolve import dense_solve, pcg
 from ._trace import NewtonTrace
-from ._vec import matvec
 
 #: Armijo constants of the backtracking line search (lab Algorithm 2).
 BETA, GAMMA = 0.5, 1e-4
@@ -95,23 +93,6 @@ class NewtonState:
     trace: NewtonTrace | None = None
 
 
-def particle_blocks(p: pr.StepProblem, C=None):
-    """``(N, 3, 3)`` per-particle Hessian blocks: ``M/h^2`` plus the contact blocks ``C``."""
-    c = p.cloth
-    dtype = p.x0.dtype
-    D = jnp.broadcast_to((c.mass / p.h**2)[:, None, None] * jnp.eye(3, dtype=dtype), (c.num_particles, 3, 3))
-    return D if C is None else D + C
-
-
-def block_jacobi(p: pr.StepProblem, A, C=None):
-    """``r -> D^{-1} r`` with ``D`` the 3x3 diagonal blocks of ``M/h^2 + sum_s A_s (+ C)``
-    (identity on pins); ``C (N, 3, 3)`` are per-particle (contact) blocks."""
-    D = spring_sum(p.cloth, A, signed=False) + particle_blocks(p, C)
-    D = jnp.where(p.free[:, :, None] > 0, D, jnp.broadcast_to(jnp.eye(3, dtype=A.dtype), D.shape))
-    Dinv = block_inverse(D)
-    return lambda r: matvec(Dinv, r)
-
-
 def _safe_ratio(num, den):
     r = num / jnp.maximum(den, jnp.finfo(num.dtype).tiny)
     return jnp.where(jnp.isfinite(r), r, jnp.inf)
@@ -143,6 +124,8 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
 
     projection = integ.project_psd  # True, False or "auto"
     f3 = free.repeat(3, axis=1).reshape(-1)
+    # PCG on planes on a grid scene (``_planes``)
+    ops = HessianOps(p, planar=solver == "cg" and c.stencil is not None, preconditioner=integ.preconditioner)
 
     def dense_direction(b, H, indefinite=False):
         """Cholesky (LU with ``indefinite=True``) on ``H (3N, 3N)`` with pinned rows and
@@ -160,45 +143,30 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
             H = H + (eye[:, None, :, None] * C[:, :, None, :]).reshape(3 * N, 3 * N)
         return H
 
-    def restricted(hvp):
-        """``v -> hvp(v)`` on the free particles, the identity on pins."""
-        return lambda v: hvp(v * free) * free + (1.0 - free) * v
-
     def cg_direction(b, hvp, guess, Minv, tol, indefinite=False):
-        """PCG on ``restricted(hvp)``."""
-        dx, k, res, broke = pcg(restricted(hvp), b, guess * free, Minv, tol=tol, max_iters=integ.cg_max_iters,
-                                indefinite=indefinite)
-        return dx, k, jnp.where(jnp.isfinite(res), res, jnp.inf), broke
-
-    def blocks_hvp(A, C, inertia=1.0):
-        def hvp(v):
-            out = spring_sum(c, matvec(A, spring_diff(c, v))) + inertia * m / h**2 * v
-            return out if C is None else out + matvec(C, v)
-
-        return hvp
-
-    def preconditioner(A_psd, C):
-        jacobi = block_jacobi(p, A_psd, C)
-        if integ.preconditioner == "jacobi":
-            return jacobi
-        factor = coarse_factor(c.aggregates, c.num_aggregates, c.springs, A_psd, particle_blocks(p, C), free[:, 0])
-        return two_level(c.aggregates, c.num_aggregates, factor, jacobi, restricted(blocks_hvp(A_psd, C)), free)
+        """PCG on ``ops.restricted(hvp)`` in its layout; ``b``, ``guess`` and the result ``(N, 3)``."""
+        dx, k, res, broke = pcg(ops.restricted(hvp), ops.to_cg(b), ops.to_cg(guess * free), Minv, tol=tol,
+                                max_iters=integ.cg_max_iters, indefinite=indefinite)
+        return ops.from_cg(dx), k, jnp.where(jnp.isfinite(res), res, jnp.inf), broke
 
     def hessian_parts(w, terms):
-        """``(A_exact, A_psd, C, Minv)`` at ``w``: the exact and the projected spring blocks
-        ``(S, 3, 3)``, the (PSD-projected) contact blocks ``(N, 3, 3)`` or ``None``, and the
-        SPD preconditioner (``None`` for Cholesky); shared by every direction of an iteration."""
-        A_exact = pr.blocks(w, p, project_psd=False, terms=terms)
-        A_psd = pr.blocks(w, p, project_psd=True, terms=terms)
-        C = None if p.contact is None else ct.blocks(p.displacement(w), p.x0, c, p.contact, free)
-        return A_exact, A_psd, C, None if solver == "dense" else preconditioner(A_psd, C)
+        """``(A_exact, A_psd, C, Minv)`` at ``w``: the exact and the projected spring blocks,
+        the PSD contact blocks or ``None`` (``(S, 3, 3)`` and ``(N, 3, 3)``, or planes for
+        PCG: ``_hessian``), and the SPD preconditioner (``None`` for Cholesky); shared by
+        every direction of an iteration."""
+        A_exact = ops.blocks(w, terms, project_psd=False)
+        A_psd = ops.blocks(w, terms, project_psd=True)
+        C, C_cg = ops.contact(w)
+        if solver == "dense":
+            return A_exact, A_psd, C, None
+        return A_exact, A_psd, C_cg, ops.preconditioner(A_psd, C, C_cg)
 
     def stationary_direction(b, parts, guess, tol):
         """``(dx, cg iterations, residual)``: the exact Hessian solved through negative curvature."""
         A_exact, _, C, Minv = parts
         if solver == "dense":
             return dense_direction(b, assembled(A_exact, C), indefinite=True)[:3]
-        return cg_direction(b, blocks_hvp(A_exact, C), guess, Minv, tol, indefinite=True)[:3]
+        return cg_direction(b, ops.hvp(A_exact, C), guess, Minv, tol, indefinite=True)[:3]
 
     def newton_direction(w, b, parts, guess, tol):
         """``(dx, cg iterations, residual, index into _trace.HESSIANS)``."""
@@ -212,12 +180,13 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
                                   lambda: dense_direction(b, assembled(A_exact, C, 1.0 + SHIFT)),
                                   lambda: dense_direction(b, assembled(A_psd, C)))
         if projection is True:
-            return first_definite(lambda: cg_direction(b, blocks_hvp(A_psd, C), guess, Minv, tol))
+            return first_definite(lambda: cg_direction(b, ops.hvp(A_psd, C), guess, Minv, tol))
         if projection is False:  # the exact Hessian, through the autodiff Hessian-vector product
-            return first_definite(lambda: cg_direction(b, lambda v: jax.jvp(grad, (w,), (v,))[1], guess, Minv, tol))
-        return first_definite(lambda: cg_direction(b, blocks_hvp(A_exact, C), guess, Minv, tol),
-                              lambda: cg_direction(b, blocks_hvp(A_exact, C, 1.0 + SHIFT), guess, Minv, tol),
-                              lambda: cg_direction(b, blocks_hvp(A_psd, C), guess, Minv, tol))
+            hvp = lambda v: ops.to_cg(jax.jvp(grad, (w,), (ops.from_cg(v),))[1])  # noqa: E731
+            return first_definite(lambda: cg_direction(b, hvp, guess, Minv, tol))
+        return first_definite(lambda: cg_direction(b, ops.hvp(A_exact, C), guess, Minv, tol),
+                              lambda: cg_direction(b, ops.hvp(A_exact, C, 1.0 + SHIFT), guess, Minv, tol),
+                              lambda: cg_direction(b, ops.hvp(A_psd, C), guess, Minv, tol))
 
     def first_definite(*tries):
         """The first direction of ``tries`` (thunks returning ``(dx, k, res, indefinite)``)
