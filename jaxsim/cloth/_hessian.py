@@ -110,7 +110,7 @@ class HessianOps:
         eye = jnp.eye(3, dtype=A_psd.dtype)[:, :, None, None]
         D = pl.block_sums(self.st, A_psd) + eye * (self.m[0] / self.p.h**2)
         D = D if C_cg is None else D + C_cg
-        Dinv = pl.block_inverse(jnp.where(self.free[0] > 0, D, eye))
+        Dinv = block_inverse(jnp.where(self.free[0] > 0, D, eye), planar=True)
         return functools.partial(pl.matvec, Dinv)
 
     def preconditioner(self, A_psd, C, C_cg):

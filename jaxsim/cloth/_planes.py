@@ -95,17 +95,3 @@ def block_sums(st: Stencil, A):
         Af = A[:, :, k:k + n].reshape((3, 3, r1 - r0, c1 - c0))
         out = out + _at_both_ends(st, Af, (r0, r1, c0, c1), off, signed=False)
     return out
-
-
-def block_inverse(D):
-    """Inverses of ``(3, 3, ...)`` blocks by the adjugate (``_linsolve.block_inverse``'s planar twin)."""
-    c00 = D[1, 1] * D[2, 2] - D[1, 2] * D[2, 1]
-    c01 = D[1, 2] * D[2, 0] - D[1, 0] * D[2, 2]
-    c02 = D[1, 0] * D[2, 1] - D[1, 1] * D[2, 0]
-    det = D[0, 0] * c00 + D[0, 1] * c01 + D[0, 2] * c02
-    adj = jnp.stack([
-        jnp.stack([c00, D[0, 2] * D[2, 1] - D[0, 1] * D[2, 2], D[0, 1] * D[1, 2] - D[0, 2] * D[1, 1]]),
-        jnp.stack([c01, D[0, 0] * D[2, 2] - D[0, 2] * D[2, 0], D[0, 2] * D[1, 0] - D[0, 0] * D[1, 2]]),
-        jnp.stack([c02, D[0, 1] * D[2, 0] - D[0, 0] * D[2, 1], D[0, 0] * D[1, 1] - D[0, 1] * D[1, 0]]),
-    ])
-    return adj / det
