@@ -1,11 +1,14 @@
 """The grid operator (``_stencil``): found automatically, and equal to the general one."""
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from jaxsim import cloth as C
+from jaxsim.cloth import _coarse
 from jaxsim.cloth import _energy as en
 from jaxsim.cloth import _planes as pl
 from jaxsim.cloth._linsolve import block_inverse
@@ -182,3 +185,43 @@ def test_contact_steps_on_planes_equal_the_general_operator():
     assert float(jnp.min(jnp.linalg.norm(a.x[-1], axis=-1))) < 0.105  # on the sphere
     np.testing.assert_allclose(a.x, b.x, rtol=0, atol=1e-10)
     np.testing.assert_array_equal(ia.newton_iters, ib.newton_iters)
+
+
+@pytest.mark.parametrize("b", [2, 3])
+def test_coarse_space_on_planes_equals_the_general_one(b):
+    """The two-level preconditioner's coarse matrix and correction on grid blocks
+    (``_planes``) equal the general Galerkin product over the same aggregates, with partial
+    blocks, pins (a block of pins too) and families reaching across two blocks."""
+    c, st, springs = unusual_grid()
+    pinned = np.zeros(35, bool)
+    pinned[[0, 1, 7, 8, 20]] = True  # with b = 2 the first block is all pins
+    rng = np.random.default_rng(5)
+    S = len(springs)
+    e = rng.normal(size=(S, 3))
+    e /= np.linalg.norm(e, axis=1, keepdims=True)
+    A = en.radial_blocks(*map(jnp.asarray, (e, rng.uniform(0.5, 2.0, S), rng.uniform(0.0, 1.0, S))), project_psd=True)
+    free = (~pinned).astype(np.float64)
+    diag = spring_sum(c, A, signed=False) + jnp.asarray(rng.uniform(1.0, 2.0, 35))[:, None, None] * jnp.eye(3)
+    ids = _coarse.block_ids(st.rows, st.cols, b)
+    count = int(ids.max()) + 1
+    ref = _coarse.coarse_matrix(jnp.asarray(ids), count, c.springs, A, diag - spring_sum(c, A, signed=False),
+                                jnp.asarray(free))
+    got = pl.coarse_matrix(st, b, A.transpose(1, 2, 0), pl.particle_planes(st, diag), pl.particle_planes(st, jnp.asarray(free)))
+    np.testing.assert_allclose(got, ref, rtol=0, atol=1e-13)
+    factor = jax.scipy.linalg.cho_factor(ref, lower=True)
+    r = jnp.asarray(rng.normal(size=(35, 3)))
+    want = _coarse.coarse_correction(jnp.asarray(ids), count, factor, jnp.asarray(free)[:, None])(r)
+    have = pl.coarse_correction(st, b, factor, pl.particle_planes(st, jnp.asarray(free))[None])(pl.to_planes(st, r))
+    np.testing.assert_allclose(pl.from_planes(have), want, rtol=0, atol=1e-12)
+
+
+def test_grid_scenes_take_block_aggregates():
+    c = C.grid(31, 0.2)
+    assert c.coarse_block == 4 and c.num_aggregates == 64
+    np.testing.assert_array_equal(c.aggregates, _coarse.block_ids(32, 32, 4))
+    lab = C.lab_cloth()
+    assert lab.coarse_block == _coarse.grid_block(11, 11) and lab.num_aggregates <= _coarse.MAX_AGGREGATES
+    other = dataclasses.replace(c, aggregates=np.arange(c.num_particles) % 64, num_aggregates=64)
+    assert other.coarse_block == 0  # other aggregates: the general coarse space
+    gen, _ = permuted(c)
+    assert gen.stencil is None and gen.coarse_block == 0

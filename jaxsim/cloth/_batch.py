@@ -14,6 +14,7 @@ import numpy as np
 from .. import _sharding
 from .._dataclass import is_concrete
 from .._validate import check_bool, check_finite, check_int, check_positive, check_real
+from ._coarse import block_ids
 from ._integrators import ExplicitEuler, ImplicitEuler
 from ._scene import Cloth, State
 from ._step import _rollout, check_inputs
@@ -55,6 +56,7 @@ def _unchecked(like: Cloth, leaves: dict, stencil=None) -> Cloth:
     object.__setattr__(out, "damped", like.damped)
     object.__setattr__(out, "num_aggregates", like.num_aggregates)
     object.__setattr__(out, "stencil", stencil)
+    object.__setattr__(out, "coarse_block", like.coarse_block if stencil is not None else 0)
     return out
 
 
@@ -81,6 +83,9 @@ def check_batched(scenes: Cloth) -> None:
             raise ValueError(f"batched scene field {f} must have shape {shape}, got {a.shape}")
         if f == "aggregates" and (a.min() < 0 or a.max() >= scenes.num_aggregates):
             raise ValueError(f"batched scene aggregates must lie in [0, {scenes.num_aggregates})")
+        if f == "aggregates" and scenes.coarse_block and scenes.stencil is not None and not np.array_equal(
+                a, np.broadcast_to(block_ids(scenes.stencil.rows, scenes.stencil.cols, scenes.coarse_block), a.shape)):
+            raise ValueError("batched scene aggregates must be the grid's blocks (coarse_block); use stack_scenes")
         if f not in ("springs", "pinned", "aggregates"):
             check_finite(f"batched scene {f}", a)
     for f, strict in (("rest_length", True), ("mass", True), ("stiffness", False), ("damping", False)):

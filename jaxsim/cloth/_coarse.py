@@ -4,8 +4,10 @@ Block Jacobi (``_hessian.block_jacobi``) removes the stiffness of each particle'
 springs, but not the smooth, cloth-wide modes.  On stiff, light cloth (``k h^2 / m`` in
 the thousands) those modes need hundreds of CG iterations per Newton iteration.
 
-Here the particles are grouped into at most ``MAX_AGGREGATES`` aggregates (cells of a
-voxel grid over the rest shape, ``aggregate``).  The prolongation ``P`` copies an
+Here the particles are grouped into at most ``MAX_AGGREGATES`` aggregates: square
+blocks of the particle grid on a grid scene (``grid_block``, ``block_ids``; restriction,
+prolongation and the Galerkin product then run on planes, ``_planes``), else the cells of
+a voxel grid over the rest shape (``aggregate``).  The prolongation ``P`` copies an
 aggregate's 3-vector to each of its free particles (piecewise-constant aggregation).
 The coarse matrix is the Galerkin product ``A_c = P^T A P`` of the preconditioning
 operator ``A = M/h^2 + sum_s A_s (+ contact)``, assembled from the same PSD blocks and
@@ -64,7 +66,12 @@ def aggregate(rest, max_aggregates: int = MAX_AGGREGATES) -> tuple[np.ndarray, i
 
 
 def coarse_factor(ids, count: int, springs, A, diag, free):
-    """Cholesky factor of the Galerkin coarse matrix ``P^T A P`` (``3 count`` square).
+    """Cholesky factor of :func:`coarse_matrix`."""
+    return jax.scipy.linalg.cho_factor(coarse_matrix(ids, count, springs, A, diag, free), lower=True)
+
+
+def coarse_matrix(ids, count: int, springs, A, diag, free):
+    """The Galerkin coarse matrix ``P^T A P`` (``3 count`` square).
 
     Args:
       ids: ``(N,)`` int32 aggregate of each particle.
@@ -82,21 +89,27 @@ def coarse_factor(ids, count: int, springs, A, diag, free):
     Ac = Ac.transpose(0, 2, 1, 3).reshape(3 * count, 3 * count)
     # an aggregate of pins only has no coarse unknowns: identity there
     empty = (jax.ops.segment_sum(free, ids, count) == 0).astype(A.dtype)
-    Ac = Ac + jnp.diag(jnp.repeat(empty, 3))
-    return jax.scipy.linalg.cho_factor(Ac, lower=True)
+    return Ac + jnp.diag(jnp.repeat(empty, 3))
 
 
-def two_level(ids, count: int, factor, jacobi, operator, free, to_layout=None, from_layout=None):
-    """The symmetric two-level cycle of the module doc, as ``r -> z`` in CG's layout.
+def grid_block(rows: int, cols: int, max_aggregates: int = MAX_AGGREGATES) -> int:
+    """Side ``b`` of the square particle blocks that aggregate a ``rows x cols`` grid: the
+    smallest with at most ``max_aggregates`` blocks."""
+    b = 1
+    while -(-rows // b) * -(-cols // b) > max_aggregates:
+        b += 1
+    return b
 
-    Args:
-      factor: :func:`coarse_factor`.
-      jacobi: ``r -> D^-1 r`` (identity on pins).
-      operator: ``v -> A v`` restricted to the free particles (identity on pins).
-      free: ``(N, 1)`` free mask.
-      to_layout, from_layout: ``(N, 3)`` to CG's layout and back (``_planes``); default
-        the identity.
-    """
+
+def block_ids(rows: int, cols: int, b: int) -> np.ndarray:
+    """``(rows * cols,)`` int32: particle ``(r, c)``'s block ``(r // b, c // b)``, row-major."""
+    r, c = np.divmod(np.arange(rows * cols), cols)
+    return ((r // b) * -(-cols // b) + c // b).astype(np.int32)
+
+
+def coarse_correction(ids, count: int, factor, free, to_layout=None, from_layout=None):
+    """``r -> P A_c^-1 P^T r`` in CG's layout (``to_layout``/``from_layout``: ``(N, 3)`` to
+    it and back, default the identity); ``free (N, 1)``."""
     to_layout = to_layout or (lambda v: v)
     from_layout = from_layout or (lambda v: v)
 
@@ -104,6 +117,18 @@ def two_level(ids, count: int, factor, jacobi, operator, free, to_layout=None, f
         rc = jax.ops.segment_sum(from_layout(r) * free, ids, count).reshape(-1)
         zc = jax.scipy.linalg.cho_solve(factor, rc).reshape(count, 3)
         return to_layout(zc[ids] * free)
+
+    return coarse
+
+
+def two_level(coarse, jacobi, operator):
+    """The symmetric two-level cycle of the module doc, as ``r -> z`` in CG's layout.
+
+    Args:
+      coarse: ``r -> P A_c^-1 P^T r`` (:func:`coarse_correction`, or ``_planes.coarse_correction``).
+      jacobi: ``r -> D^-1 r`` (identity on pins).
+      operator: ``v -> A v`` restricted to the free particles (identity on pins).
+    """
 
     def apply(r):
         # the two corrections as a loop of two stages, so that each operator product reads

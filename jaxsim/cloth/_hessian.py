@@ -11,12 +11,13 @@ from __future__ import annotations
 
 import functools
 
+import jax
 import jax.numpy as jnp
 
 from . import _contact as ct
 from . import _planes as pl
 from . import _problem as pr
-from ._coarse import coarse_factor, two_level
+from ._coarse import coarse_correction, coarse_factor, two_level
 from ._linsolve import block_inverse
 from ._scene import spring_diff, spring_sum
 from ._vec import matvec
@@ -103,23 +104,35 @@ class HessianOps:
 
         return apply
 
-    def jacobi(self, A_psd, C_cg):
-        """Block Jacobi: ``r -> D^{-1} r`` (identity on pins)."""
-        if self.st is None:
-            return block_jacobi(self.p, A_psd, C_cg)
+    def diagonal(self, A_psd, C_cg):
+        """The diagonal blocks of ``M/h^2 + sum_s A_s (+ C)``: ``(3, 3, rows, cols)`` on planes."""
         eye = jnp.eye(3, dtype=A_psd.dtype)[:, :, None, None]
         D = pl.block_sums(self.st, A_psd) + eye * (self.m[0] / self.p.h**2)
-        D = D if C_cg is None else D + C_cg
+        return D if C_cg is None else D + C_cg
+
+    def jacobi(self, A_psd, C_cg, D=None):
+        """Block Jacobi: ``r -> D^{-1} r`` (identity on pins); ``D`` from :meth:`diagonal`."""
+        if self.st is None:
+            return block_jacobi(self.p, A_psd, C_cg)
+        D = self.diagonal(A_psd, C_cg) if D is None else D
+        eye = jnp.eye(3, dtype=A_psd.dtype)[:, :, None, None]
         Dinv = block_inverse(jnp.where(self.free[0] > 0, D, eye), planar=True)
         return functools.partial(pl.matvec, Dinv)
 
     def preconditioner(self, A_psd, C, C_cg):
         """Block Jacobi, or the two-level cycle of ``_coarse`` around it (SPD)."""
-        jacobi = self.jacobi(A_psd, C_cg)
+        D = None if self.st is None else self.diagonal(A_psd, C_cg)
+        jacobi = self.jacobi(A_psd, C_cg, D)
         if self.kind == "jacobi":
             return jacobi
         p, c = self.p, self.p.cloth
-        A_aos = A_psd if self.st is None else A_psd.transpose(2, 0, 1)
-        factor = coarse_factor(c.aggregates, c.num_aggregates, c.springs, A_aos, particle_blocks(p, C), p.free[:, 0])
-        return two_level(c.aggregates, c.num_aggregates, factor, jacobi, self.restricted(self.hvp(A_psd, C_cg)),
-                         p.free, self.to_cg, self.from_cg)
+        if self.st is not None and c.coarse_block:  # blocks of the grid: no scatter, no gather
+            b = c.coarse_block
+            factor = jax.scipy.linalg.cho_factor(pl.coarse_matrix(self.st, b, A_psd, D, self.free[0]), lower=True)
+            coarse = pl.coarse_correction(self.st, b, factor, self.free)
+        else:
+            A_aos = A_psd if self.st is None else A_psd.transpose(2, 0, 1)
+            factor = coarse_factor(c.aggregates, c.num_aggregates, c.springs, A_aos, particle_blocks(p, C),
+                                   p.free[:, 0])
+            coarse = coarse_correction(c.aggregates, c.num_aggregates, factor, p.free, self.to_cg, self.from_cg)
+        return two_level(coarse, jacobi, self.restricted(self.hvp(A_psd, C_cg)))

@@ -13,7 +13,9 @@ once per solve, and forms the blocks in planes once per iteration.
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
+import numpy as np
 
 from ._stencil import Stencil
 
@@ -95,3 +97,89 @@ def block_sums(st: Stencil, A):
         Af = A[:, :, k:k + n].reshape((3, 3, r1 - r0, c1 - c0))
         out = out + _at_both_ends(st, Af, (r0, r1, c0, c1), off, signed=False)
     return out
+
+
+# -- the two-level preconditioner's coarse space on a grid: square blocks of b x b particles
+# (``_coarse.grid_block``), so that restriction and prolongation are block sums and copies.
+
+def _block_grid(st: Stencil, b: int) -> tuple[int, int]:
+    return -(-st.rows // b), -(-st.cols // b)
+
+
+def _padded(st: Stencil, b: int, F, r0: int, c0: int):
+    """``F (..., h, w)``, a window of the grid at ``(r0, c0)``, padded to ``(nI b, nJ b)``."""
+    nI, nJ = _block_grid(st, b)
+    lead = [(0, 0)] * (F.ndim - 2)
+    return jnp.pad(F, lead + [(r0, nI * b - r0 - F.shape[-2]), (c0, nJ * b - c0 - F.shape[-1])])
+
+
+def block_reduce(st: Stencil, b: int, F):
+    """Block sums ``(..., nI, nJ)`` of a plane ``F (..., rows, cols)``."""
+    nI, nJ = _block_grid(st, b)
+    return _padded(st, b, F, 0, 0).reshape(F.shape[:-2] + (nI, b, nJ, b)).sum((-3, -1))
+
+
+def coarse_matrix(st: Stencil, b: int, A, D, free):
+    """The Galerkin matrix ``P^T H P`` (``3 count`` square) of ``_coarse`` on blocks.
+
+    Args:
+      A: ``(3, 3, S)`` PSD spring blocks.
+      D: ``(3, 3, rows, cols)`` the diagonal blocks of ``H`` (``M/h^2``, the particle's
+        springs, contact).
+      free: ``(rows, cols)`` 1.0 on free particles.
+
+    A spring joins two blocks whose offset ``(dI, dJ)`` is known from its family and
+    position; block sums by offset class give ``H``'s coarse blocks without a scatter over
+    springs.  The diagonal: ``sum free D`` less twice the springs inside a block.
+    """
+    nI, nJ = _block_grid(st, b)
+    count = nI * nJ
+    classes = {(0, 0): block_reduce(st, b, D * free)}
+    for k, n, (r0, r1, c0, c1), (dr, dc) in _families(st):
+        F = A[:, :, k:k + n].reshape((3, 3, r1 - r0, c1 - c0))
+        F = _padded(st, b, F * (free[r0:r1, c0:c1] * free[r0 + dr:r1 + dr, c0 + dc:c1 + dc]), r0, c0)
+        # a spring's block offset depends on its second end's place in its block only
+        place = np.arange(b)
+        dI, dJ = (place + dr) // b, (place + dc) // b
+        ai, aj = np.unique(dI), np.unique(dJ)
+        MI = (dI[None, :] == ai[:, None]).astype(F.dtype)
+        MJ = (dJ[None, :] == aj[:, None]).astype(F.dtype)
+        X = jnp.einsum("xyIrJc,ar,bc->abxyIJ", F.reshape((3, 3, nI, b, nJ, b)), MI, MJ)
+        for u, a in enumerate(ai):
+            for v, c in enumerate(aj):
+                key = (int(a), int(c))
+                Y = X[u, v] * (-2.0 if key == (0, 0) else -1.0)
+                classes[key] = classes[key] + Y if key in classes else Y
+    I, J = (g.reshape(-1) for g in np.meshgrid(np.arange(nI), np.arange(nJ), indexing="ij"))
+    at, to, vals = [], [], []
+    for (a, c), X in classes.items():
+        X = X.reshape((3, 3, count))
+        if (a, c) == (0, 0):
+            at.append(I * nJ + J)
+            to.append(I * nJ + J)
+            vals.append(X)
+            continue
+        ok = (I + a >= 0) & (I + a < nI) & (J + c >= 0) & (J + c < nJ)
+        src, dst = (I * nJ + J)[ok], ((I + a) * nJ + J + c)[ok]
+        X = X[:, :, np.flatnonzero(ok)]
+        at += [dst, src]  # the block and its mirror (A_s is symmetric)
+        to += [src, dst]
+        vals += [X, X]
+    at, to = np.concatenate(at), np.concatenate(to)
+    vals = jnp.concatenate(vals, axis=-1).transpose(2, 0, 1)
+    Ac = jnp.zeros((count, 3, count, 3), A.dtype).at[at, :, to, :].add(vals).reshape(3 * count, 3 * count)
+    empty = (block_reduce(st, b, free) == 0).reshape(-1).astype(A.dtype)  # a block of pins: identity
+    return Ac + jnp.diag(jnp.repeat(empty, 3))
+
+
+def coarse_correction(st: Stencil, b: int, factor, free):
+    """``r -> P A_c^-1 P^T r`` on planes ``(3, rows, cols)``; ``free (1, rows, cols)``."""
+    nI, nJ = _block_grid(st, b)
+
+    def coarse(r):
+        rc = block_reduce(st, b, r * free).transpose(1, 2, 0).reshape(-1)
+        zc = jax.scipy.linalg.cho_solve(factor, rc).reshape(nI, nJ, 3).transpose(2, 0, 1)
+        z = jnp.broadcast_to(zc[:, :, None, :, None], (3, nI, b, nJ, b)).reshape(3, nI * b, nJ * b)
+        return z[:, :st.rows, :st.cols] * free
+
+    return coarse

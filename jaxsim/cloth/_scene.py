@@ -11,7 +11,7 @@ import numpy as np
 from .._dataclass import is_concrete, pytree_dataclass, static_field
 from .._dtype import as_float, check_array_dtype, check_float_dtype, default_float
 from .._validate import check_finite, check_int, check_positive, check_real, check_shape
-from ._coarse import aggregate
+from ._coarse import aggregate, block_ids, grid_block
 from ._colliders import check_colliders, count_inside, describe_inside
 from ._stencil import Stencil, detect, differences, sums
 
@@ -36,10 +36,15 @@ class Cloth:
         ``-(s + 1)`` where it is the first, 0 as padding (``D`` = largest degree).  It
         lets the CG operator sum spring forces per particle by gathering instead of a
         scatter-add.
-      aggregates: ``(N,)`` int32, derived from ``rest`` at construction (leave it
-        ``None``): each particle's cell in a coarse voxel grid of at most 64 cells, used
-        by ``ImplicitEuler(preconditioner="two_level")`` (``_coarse``).
-      num_aggregates: static, the number of those cells.
+      aggregates: ``(N,)`` int32, derived at construction (leave it ``None``): each
+        particle's aggregate, at most 64 of them, used by
+        ``ImplicitEuler(preconditioner="two_level")`` (``_coarse``): square blocks of the
+        particle grid on a grid scene (``stencil``), else the cells of a voxel grid over
+        ``rest``.
+      num_aggregates: static, the number of aggregates.
+      coarse_block: static, derived: the side ``b`` of the grid's square blocks when the
+        aggregates are those blocks (the two-level preconditioner then works on planes,
+        ``_planes``), else 0.
       stencil: static, derived from ``springs`` at construction (leave it ``None``): the
         grid layout (``_stencil.Stencil``) when the springs are a regular grid's
         families in order (as ``grid`` and ``lab_cloth`` build them), else ``None``.
@@ -69,6 +74,7 @@ class Cloth:
     incidence: jax.Array | None = None
     aggregates: jax.Array | None = None
     num_aggregates: int = static_field(default=0)
+    coarse_block: int = static_field(default=0)
     stencil: Stencil | None = static_field(default=None)
     colliders: tuple = ()
     contact_gap: jax.Array | None = None
@@ -127,10 +133,14 @@ class Cloth:
             st = detect(springs, N)
         set_(self, "stencil", st)
         ids = self.aggregates
+        b = 0 if st is None else grid_block(st.rows, st.cols)
         if ids is None or self.num_aggregates == 0 or np.shape(ids) != (N,):
-            ids, count = aggregate(rest)
+            ids, count = (aggregate(rest) if st is None
+                          else (block_ids(st.rows, st.cols, b), -(-st.rows // b) * -(-st.cols // b)))
             set_(self, "num_aggregates", count)
         ids = np.asarray(ids)
+        blocks = b and self.num_aggregates == -(-st.rows // b) * -(-st.cols // b)
+        set_(self, "coarse_block", b if blocks and np.array_equal(ids, block_ids(st.rows, st.cols, b)) else 0)
         if not np.issubdtype(ids.dtype, np.integer) or ids.min() < 0 or ids.max() >= self.num_aggregates:
             raise ValueError(f"aggregates must be integer ids in [0, {self.num_aggregates}) (leave them None)")
         set_(self, "aggregates", jnp.asarray(ids, jnp.int32))
