@@ -47,7 +47,8 @@ def test_two_level_is_symmetric_positive_definite(pins):
     A = _problem.blocks(w, p, project_psd=True)
     free = p.free
     N = c.num_particles
-    factor = _coarse.coarse_factor(c.aggregates, c.num_aggregates, c.springs, A, particle_blocks(p), free[:, 0])
+    factor = _coarse.coarse_factor(c.aggregates, c.num_aggregates, c.springs, A, particle_blocks(p), free[:, 0],
+                                   _coarse.least_mass(c.aggregates, c.num_aggregates, c.mass, free[:, 0], p.h))
     i, j = c.springs[:, 0], c.springs[:, 1]
 
     def operator(v):  # the CG operator: identity on pins
@@ -71,6 +72,38 @@ def test_two_level_is_symmetric_positive_definite(pins):
         return ev.max() / ev.min()
 
     assert cond(Mdense) < 0.2 * cond(Jdense)
+
+
+@pytest.mark.parametrize("k, dtype", [(1e3, np.float64), (1e9, np.float64), (1e3, np.float32)])
+def test_coarse_cholesky_factors_in_float32_and_shifts_only_where_ill_conditioned(k, dtype):
+    """A float64 coarse matrix is factored in float32: exactly where its conditioning
+    allows, shifted where it does not (k = 1e9: no float32 factor of ``Ac`` itself is
+    accurate), never failing; the factor comes back in the matrix's dtype with a positive
+    diagonal (an SPD preconditioner either way)."""
+    c = stiff_grid(15, k, dtype=dtype, pins=[])  # free: the translation has only the mass
+    s = C.State.at_rest(c)
+    x0 = s.x + 0.01 * jax.random.normal(jax.random.PRNGKey(1), s.x.shape, dtype)
+    p = _problem.StepProblem.build(c, x0, s.v, jnp.asarray(1 / 30, dtype))
+    A = _problem.blocks(jnp.zeros_like(x0), p, project_psd=True)
+    Ac = _coarse.coarse_matrix(c.aggregates, c.num_aggregates, c.springs, A, particle_blocks(p), p.free[:, 0])
+    lam_min = _coarse.least_mass(c.aggregates, c.num_aggregates, c.mass, p.free[:, 0], p.h)
+    ev = np.linalg.eigvalsh(np.asarray(Ac, np.float64))
+    assert lam_min <= ev.min() + 64 * np.finfo(dtype).eps * ev.max()  # the bound holds (exactly, for a free translation)
+    L, lower = jax.jit(_coarse.cholesky)(Ac, lam_min)
+    assert lower and L.dtype == dtype
+    L, Ac = np.asarray(L, np.float64), np.asarray(Ac, np.float64)
+    assert np.all(np.isfinite(L)) and np.all(np.diag(L) > 0) and np.all(np.triu(L, 1) == 0)
+    LLt = L @ L.T
+    rel = np.abs(LLt - Ac).max() / np.abs(Ac).max()
+    eps32 = np.finfo(np.float32).eps
+    if k == 1e3:  # well conditioned: the factor of Ac, to float32's rounding (not float64's in x64)
+        assert ev.max() / ev.min() * eps32 < 1e-2
+        assert (1e-10 if dtype == np.float64 else 0.0) < rel < 1e-5
+    else:  # shifted: the factored matrix's conditioning brought within float32's reach
+        assert ev.max() / ev.min() * eps32 > 10
+        ev2 = np.linalg.eigvalsh(LLt)
+        assert ev2.max() / ev2.min() * eps32 < _coarse.FLOAT32_FACTOR_LIMIT
+        assert ev2.min() >= ev.min()  # a positive shift
 
 
 @pytest.fixture(scope="module")

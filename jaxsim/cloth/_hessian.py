@@ -11,13 +11,12 @@ from __future__ import annotations
 
 import functools
 
-import jax
 import jax.numpy as jnp
 
 from . import _contact as ct
 from . import _planes as pl
 from . import _problem as pr
-from ._coarse import coarse_correction, coarse_factor, two_level
+from ._coarse import cholesky, coarse_correction, coarse_factor, least_mass, two_level
 from ._linsolve import block_inverse
 from ._scene import spring_diff, spring_sum
 from ._vec import matvec
@@ -128,11 +127,13 @@ class HessianOps:
         p, c = self.p, self.p.cloth
         if self.st is not None and c.coarse_block:  # blocks of the grid: no scatter, no gather
             b = c.coarse_block
-            factor = jax.scipy.linalg.cho_factor(pl.coarse_matrix(self.st, b, A_psd, D, self.free[0]), lower=True)
+            m = pl.block_reduce(self.st, b, self.m[0] * self.free[0]) / p.h**2  # free mass per block
+            factor = cholesky(pl.coarse_matrix(self.st, b, A_psd, D, self.free[0]), jnp.min(jnp.where(m > 0, m, 1.0)))
             coarse = pl.coarse_correction(self.st, b, factor, self.free)
         else:
             A_aos = A_psd if self.st is None else A_psd.transpose(2, 0, 1)
-            factor = coarse_factor(c.aggregates, c.num_aggregates, c.springs, A_aos, particle_blocks(p, C),
-                                   p.free[:, 0])
+            free = p.free[:, 0]
+            factor = coarse_factor(c.aggregates, c.num_aggregates, c.springs, A_aos, particle_blocks(p, C), free,
+                                   least_mass(c.aggregates, c.num_aggregates, c.mass, free, p.h))
             coarse = coarse_correction(c.aggregates, c.num_aggregates, factor, p.free, self.to_cg, self.from_cg)
         return two_level(coarse, jacobi, self.restricted(self.hvp(A_psd, C_cg)))
