@@ -77,8 +77,8 @@ def cholesky(Ac, lam_min):
     ``jax.scipy.linalg.cho_solve``, in ``Ac``'s dtype.
 
     A float64 ``Ac`` is factored in float32, after adding ``sigma I`` with the least
-    ``sigma >= 0`` that makes Gershgorin's bound on its largest eigenvalue over
-    ``lam_min + sigma`` at most ``FLOAT32_FACTOR_LIMIT / eps32`` (``lam_min``: ``()``, a
+    ``sigma >= 0`` that brings Gershgorin's bound on its largest eigenvalue over
+    ``lam_min + sigma`` down to ``FLOAT32_FACTOR_LIMIT / eps32`` (``lam_min``: ``()``, a
     lower bound on ``Ac``'s smallest eigenvalue, the least free mass of an aggregate over
     ``h^2``).  The factor exists, and the preconditioner stays symmetric positive
     definite: it is the exact factor of a nearby SPD matrix, and its triangular solves run
