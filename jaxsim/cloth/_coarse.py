@@ -102,10 +102,13 @@ def coarse_factor(ids, count: int, springs, A, diag, free, lam_min):
     return cholesky(coarse_matrix(ids, count, springs, A, diag, free), lam_min)
 
 
-def least_mass(ids, count: int, mass, free, h):
+def least_mass(aggregate_mass, h):
     """``()`` the least free mass of an aggregate over ``h^2`` (1 for an aggregate of pins,
-    whose coarse rows are the identity): a lower bound on the coarse matrix's eigenvalues."""
-    m = jax.ops.segment_sum(mass * free, ids, count) / h**2
+    whose coarse rows are the identity): a lower bound on the coarse matrix's eigenvalues.
+
+    ``aggregate_mass``: each aggregate's free mass, any shape (``segment_sum`` over the
+    aggregates, or ``_planes.block_reduce`` on a grid)."""
+    m = aggregate_mass / h**2
     return jnp.min(jnp.where(m > 0, m, 1.0))
 
 
@@ -135,15 +138,20 @@ def grid_block(rows: int, cols: int, max_aggregates: int = MAX_AGGREGATES) -> in
     """Side ``b`` of the square particle blocks that aggregate a ``rows x cols`` grid: the
     smallest with at most ``max_aggregates`` blocks."""
     b = 1
-    while -(-rows // b) * -(-cols // b) > max_aggregates:
+    while np.prod(block_grid(rows, cols, b)) > max_aggregates:
         b += 1
     return b
+
+
+def block_grid(rows: int, cols: int, b: int) -> tuple[int, int]:
+    """``(nI, nJ)``: the blocks of side ``b`` along each axis of a ``rows x cols`` grid."""
+    return -(-rows // b), -(-cols // b)
 
 
 def block_ids(rows: int, cols: int, b: int) -> np.ndarray:
     """``(rows * cols,)`` int32: particle ``(r, c)``'s block ``(r // b, c // b)``, row-major."""
     r, c = np.divmod(np.arange(rows * cols), cols)
-    return ((r // b) * -(-cols // b) + c // b).astype(np.int32)
+    return ((r // b) * block_grid(rows, cols, b)[1] + c // b).astype(np.int32)
 
 
 def coarse_correction(ids, count: int, factor, free, to_layout=None, from_layout=None):

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import functools
 
+import jax
 import jax.numpy as jnp
 
 from . import _contact as ct
@@ -58,6 +59,13 @@ class HessianOps:
         else:
             self.free = pl.particle_planes(self.st, free[:, 0])[None]
             self.m = pl.particle_planes(self.st, c.mass)[None]
+        self.lam_min = None  # the two-level coarse matrix's eigenvalue bound, once per step
+        if preconditioner == "two_level":
+            if self.st is not None and c.coarse_block:
+                agg = pl.block_reduce(self.st, c.coarse_block, self.m[0] * self.free[0])
+            else:
+                agg = jax.ops.segment_sum(c.mass * free[:, 0], c.aggregates, c.num_aggregates)
+            self.lam_min = least_mass(agg, p.h)
 
     def to_cg(self, v):
         """``(N, 3)`` to PCG's layout."""
@@ -127,13 +135,11 @@ class HessianOps:
         p, c = self.p, self.p.cloth
         if self.st is not None and c.coarse_block:  # blocks of the grid: no scatter, no gather
             b = c.coarse_block
-            m = pl.block_reduce(self.st, b, self.m[0] * self.free[0]) / p.h**2  # free mass per block
-            factor = cholesky(pl.coarse_matrix(self.st, b, A_psd, D, self.free[0]), jnp.min(jnp.where(m > 0, m, 1.0)))
+            factor = cholesky(pl.coarse_matrix(self.st, b, A_psd, D, self.free[0]), self.lam_min)
             coarse = pl.coarse_correction(self.st, b, factor, self.free)
         else:
             A_aos = A_psd if self.st is None else A_psd.transpose(2, 0, 1)
-            free = p.free[:, 0]
-            factor = coarse_factor(c.aggregates, c.num_aggregates, c.springs, A_aos, particle_blocks(p, C), free,
-                                   least_mass(c.aggregates, c.num_aggregates, c.mass, free, p.h))
+            factor = coarse_factor(c.aggregates, c.num_aggregates, c.springs, A_aos, particle_blocks(p, C),
+                                   p.free[:, 0], self.lam_min)
             coarse = coarse_correction(c.aggregates, c.num_aggregates, factor, p.free, self.to_cg, self.from_cg)
         return two_level(coarse, jacobi, self.restricted(self.hvp(A_psd, C_cg)))

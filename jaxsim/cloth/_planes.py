@@ -17,6 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._coarse import block_grid
 from ._stencil import Stencil
 
 
@@ -103,7 +104,7 @@ def block_sums(st: Stencil, A):
 # (``_coarse.grid_block``), so that restriction and prolongation are block sums and copies.
 
 def _block_grid(st: Stencil, b: int) -> tuple[int, int]:
-    return -(-st.rows // b), -(-st.cols // b)
+    return block_grid(st.rows, st.cols, b)
 
 
 def _padded(st: Stencil, b: int, F, r0: int, c0: int):

@@ -11,7 +11,7 @@ import numpy as np
 from .._dataclass import is_concrete, pytree_dataclass, static_field
 from .._dtype import as_float, check_array_dtype, check_float_dtype, default_float
 from .._validate import check_finite, check_int, check_positive, check_real, check_shape
-from ._coarse import aggregate, block_ids, grid_block
+from ._coarse import aggregate, block_grid, block_ids, grid_block
 from ._colliders import check_colliders, count_inside, describe_inside
 from ._stencil import Stencil, detect, differences, sums
 
@@ -136,10 +136,10 @@ class Cloth:
         b = 0 if st is None else grid_block(st.rows, st.cols)
         if ids is None or self.num_aggregates == 0 or np.shape(ids) != (N,):
             ids, count = (aggregate(rest) if st is None
-                          else (block_ids(st.rows, st.cols, b), -(-st.rows // b) * -(-st.cols // b)))
+                          else (block_ids(st.rows, st.cols, b), int(np.prod(block_grid(st.rows, st.cols, b)))))
             set_(self, "num_aggregates", count)
         ids = np.asarray(ids)
-        blocks = b and self.num_aggregates == -(-st.rows // b) * -(-st.cols // b)
+        blocks = b and self.num_aggregates == np.prod(block_grid(st.rows, st.cols, b))
         set_(self, "coarse_block", b if blocks and np.array_equal(ids, block_ids(st.rows, st.cols, b)) else 0)
         if not np.issubdtype(ids.dtype, np.integer) or ids.min() < 0 or ids.max() >= self.num_aggregates:
             raise ValueError(f"aggregates must be integer ids in [0, {self.num_aggregates}) (leave them None)")
