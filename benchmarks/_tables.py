@@ -70,7 +70,7 @@ def cloth_table():
             out.append(f"| {r['scene']} | {r['method']} | float64 | {r['ms_per_step']:.2f} | {r['newton']} | | | "
                        f"{r['error_vs_ref']:.1e} | 1 |")
         else:
-            out.append(f"| {r['scene']} | {r['method']} | {r['dtype']} | {r['ms_per_step']:.3f} | {r['newton']} | {r['cg_iters']} | "
+            out.append(f"| {r['scene']} | {r['method']} | {r['dtype']} | {r['ms_per_step']:.3f} | {r['newton']:.1f} | {r['cg_iters']:.1f} | "
                        f"{'yes' if r['converged'] else 'no'} | {r['error_vs_ref']:.1e} | {r['speedup_vs_scipy']:.1f} |")
     return "\n".join(out)
 

@@ -219,15 +219,16 @@ def test_stretch_increment_has_no_cancellation():
 def test_stiff_light_cloth_converges_every_step(dtype):
     """Scene C's regime (total mass 1, k = 1e3, g = 9.8, dt = 1/30) on a 16x16 grid: the
     default (exact Hessian, projected only where it is not positive definite) converges
-    every step; always clamping the compression eigenvalues (the lab's choice) makes
-    Newton linear and runs into the iteration cap."""
+    every step; always clamping the compression eigenvalues and starting from x^n (the
+    lab's choices) makes Newton linear and runs into the iteration cap.  (From the
+    extrapolated start the clamped steps converge here too, in 7-18 iterations against 5-6.)"""
     n = 16
     c = C.grid(n - 1, 0.2, mass=1.0 / n**2, stiffness=1e3, gravity=9.8, dtype=dtype)
     s0 = C.State.at_rest(c)
     _, infos = C.rollout(c, s0, 1 / 30, 20, C.ImplicitEuler(solver="cg"))
     assert bool(jnp.all(infos.converged)) and int(jnp.max(infos.newton_iters)) <= 10
     if dtype == np.float64:
-        _, clamped = C.rollout(c, s0, 1 / 30, 20, C.ImplicitEuler(solver="cg", project_psd=True))
+        _, clamped = C.rollout(c, s0, 1 / 30, 20, C.ImplicitEuler(solver="cg", project_psd=True, extrapolate=False))
         assert not bool(jnp.all(clamped.converged)) and int(jnp.max(clamped.newton_iters)) == 20
 
 

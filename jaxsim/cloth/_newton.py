@@ -98,8 +98,9 @@ def _safe_ratio(num, den):
     return jnp.where(jnp.isfinite(r), r, jnp.inf)
 
 
-def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
-    """Minimise ``g(., p)`` from ``w = -y`` (the displacement 0, the lab's start).
+def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol, start=None) -> NewtonState:
+    """Minimise ``g(., p)`` from ``w = -y`` (the displacement 0, the lab's start), or from
+    ``start`` (``(N, 3)``, a deviation ``w``; pinned rows ignored) where ``g`` is lower there.
 
     Stops when the lab's step test ``max|alpha dx| / h < tol`` holds and the gradient is
     small (``rel <= rtol``), when the gradient is at rounding level, when the step is
@@ -282,9 +283,17 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol) -> NewtonState:
                            done=done, fail=s.fail | ~ok, trace=trace)
 
     w0 = p.start
-    f0, g0, t0 = evaluate(w0)
+    if start is None or p.contact is not None:
+        cg0 = h * p.v0 * free  # the first direction is about the displacement h v^n
+        f0, g0, t0 = evaluate(w0)
+    else:  # the lower start of the two (NaN never wins); g at the lab's start costs no pass
+        wg = jnp.where(free > 0, start, w0)
+        fg, gg, tg = evaluate(wg)
+        better = fg < pr.start_objective(p)
+        w0, f0, g0, t0 = lax.cond(better, lambda: (wg, fg, gg, tg), lambda: (w0,) + evaluate(w0))
+        cg0 = jnp.where(better, 0.0, h * p.v0 * free)
     z = jnp.zeros((), dtype)
-    s0 = NewtonState(w=w0, g=f0, grad=g0, rel=pr.relative_gradient(g0, w0, p, t0), guess=h * p.v0 * free,
+    s0 = NewtonState(w=w0, g=f0, grad=g0, rel=pr.relative_gradient(g0, w0, p, t0), guess=cg0,
                      it=jnp.int32(0), cg=jnp.int32(0), bt=jnp.int32(0), alpha=z, res=z, terms=t0,
                      indefinite=jnp.array(False), stationary_below=jnp.asarray(STATIONARY_REL, dtype),
                      done=jnp.array(False), fail=jnp.array(False),

@@ -186,6 +186,16 @@ def incremental_potential(w, p: StepProblem):
     return objective(w, p, spring_terms(w, p))
 
 
+def start_objective(p: StepProblem):
+    """``g(p.start)`` (J) without contact: at the lab's start (the displacement 0) every
+    spring keeps its length ``l0`` and changes by 0 along ``e0``, so ``g`` is the inertia
+    term of ``w = -y`` plus the springs' potential at their stretches ``s0``, with no pass
+    over the particles' spring ends (tested equal to :func:`incremental_potential`)."""
+    c = p.cloth
+    y = p.prediction
+    return 0.5 / p.h**2 * jnp.sum(c.mass[:, None] * y * y) + jnp.sum(en.spring_potential(p.s0, c.stiffness))
+
+
 def gradient(w, p: StepProblem, t: SpringTerms):
     """``grad g(w)`` ``(N, 3)`` (N) from the spring terms ``t`` at ``w``: inertia plus the
     per-spring forces ``psi'(s) e (+ (d/h)(e0 . dd) e0)`` summed at both ends (no

@@ -93,13 +93,17 @@ def _explicit(cloth: Cloth, state: State, dt, integ: ExplicitEuler):
     return State(jnp.where(valid, new.x, state.x), jnp.where(valid, new.v, state.v)), info
 
 
-def _implicit(cloth: Cloth, state: State, dt, integ: ImplicitEuler, prev=None):
+def _implicit(cloth: Cloth, state: State, dt, integ: ImplicitEuler, prev=None, start=None):
     x0, v0, h = state.x, state.v, dt
     valid = valid_inputs(cloth, dt)
     p = pr.StepProblem.build(cloth, x0, v0, h, prev)
     rtol = integ.resolved_rtol(x0.dtype)
     p_const = jax.tree_util.tree_map(lax.stop_gradient, p)
-    s = newton(p_const, integ, rtol)
+    if start is not None and p.contact is None:  # contact starts from x^n or its push-out
+        start = lax.stop_gradient(start(p_const))
+    else:
+        start = None
+    s = newton(p_const, integ, rtol, start)
     w = solution(integ, s.w, p)
     free = p.free > 0
     u = jnp.where(free, p.displacement(w), 0.0)  # pins do not move
@@ -115,10 +119,17 @@ def _implicit(cloth: Cloth, state: State, dt, integ: ImplicitEuler, prev=None):
 
 
 @functools.partial(jax.jit, static_argnames=("integrator",))
-def _step(cloth, state, dt, integrator, prev=None):
+def _step(cloth, state, dt, integrator, prev=None, guess=None, v_prev=None):
+    """One step; an implicit one may start Newton from ``guess`` (end-of-step positions,
+    ``(N, 3)``) or from the extrapolation ``x^n + h (2 v^n - v_prev)`` (``v_prev (N, 3)``)."""
     if isinstance(integrator, ExplicitEuler):
         return _explicit(cloth, state, dt, integrator)
-    return _implicit(cloth, state, dt, integrator, prev)
+    start = None
+    if guess is not None:
+        start = lambda p: (guess - p.x0) - p.prediction  # noqa: E731
+    elif v_prev is not None:  # the deviation h (v^n - v_prev) - h^2 g, without rounding x
+        start = lambda p: p.h * (p.v0 - v_prev) - p.h**2 * p.cloth.gravity  # noqa: E731
+    return _implicit(cloth, state, dt, integrator, prev, start)
 
 
 def check_inputs(cloth: Cloth, state: State, dt, integrator) -> State:
@@ -159,7 +170,7 @@ def check_inputs(cloth: Cloth, state: State, dt, integrator) -> State:
     return State(*out)
 
 
-def step(cloth: Cloth, state: State, dt, integrator=ImplicitEuler()) -> tuple[State, StepInfo]:
+def step(cloth: Cloth, state: State, dt, integrator=ImplicitEuler(), guess=None) -> tuple[State, StepInfo]:
     """Advance ``state`` by ``dt`` seconds.
 
     Args:
@@ -167,6 +178,11 @@ def step(cloth: Cloth, state: State, dt, integrator=ImplicitEuler()) -> tuple[St
       state: ``State(x (N,3), v (N,3))``.
       dt: time step (s), > 0.
       integrator: ``ExplicitEuler(substeps)`` or ``ImplicitEuler(...)``.
+      guess: ``(N, 3)`` predicted end-of-step positions (m), or ``None``.  Newton starts
+        from it instead of ``x^n`` where the incremental potential is lower there (pinned
+        rows ignored; not used with colliders or explicit Euler).  ``rollout`` passes
+        ``x^n + h (2 v^n - v^{n-1})`` (``ImplicitEuler.extrapolate``); stepping by hand,
+        ``guess=state.x + dt * (2 * state.v - previous.v)`` does the same.
 
     Returns:
       ``(new_state, StepInfo)`` in the scene's dtype (the state is cast to it).  Pinned
@@ -177,23 +193,37 @@ def step(cloth: Cloth, state: State, dt, integrator=ImplicitEuler()) -> tuple[St
     memory in again at every call (35.1 -> 20.1 ms per step, README "Compilation and memory").
     """
     state = check_inputs(cloth, state, dt, integrator)
-    return _step(cloth, state, jnp.asarray(dt, cloth.dtype), integrator)
+    if guess is not None:
+        guess = _check_guess(guess, cloth.num_particles, cloth.dtype)
+    return _step(cloth, state, jnp.asarray(dt, cloth.dtype), integrator, guess=guess)
+
+
+def _check_guess(guess, N: int, dtype) -> jax.Array:
+    if is_concrete(guess):
+        guess = check_finite("guess", check_shape("guess", guess, (N, 3)))
+    elif tuple(guess.shape) != (N, 3):
+        raise ValueError(f"guess must have shape ({N}, 3), got {tuple(guess.shape)}")
+    return jnp.asarray(guess, dtype)
 
 
 @functools.partial(jax.jit, static_argnames=("n_steps", "integrator", "checkpoint"))
 def _rollout(cloth, state, dt, n_steps, integrator, checkpoint=False, path=None):
+    extrapolate = isinstance(integrator, ImplicitEuler) and integrator.extrapolate and not cloth.colliders
+
     def f(carry, cols):
-        s, prev = carry
+        s, prev, v_prev = carry
+        v_prev = v_prev if extrapolate else None
         if cols is None:
-            s2, info = _step(cloth, s, dt, integrator)
+            s2, info = _step(cloth, s, dt, integrator, v_prev=v_prev)
         else:
-            s2, info = _step(dataclasses.replace(cloth, colliders=cols), s, dt, integrator, prev)
-        return (s2, cols if cols is not None else prev), (s2, info)
+            s2, info = _step(dataclasses.replace(cloth, colliders=cols), s, dt, integrator, prev, v_prev=v_prev)
+        return (s2, cols if cols is not None else prev, s.v if extrapolate else None), (s2, info)
 
     if checkpoint:
         f = jax.checkpoint(f, prevent_cse=False)
     prev0 = cloth.colliders if path is not None else None
-    _, (states, infos) = lax.scan(f, (state, prev0), path, length=n_steps)
+    # the first step extrapolates with v_prev = v^0: from x^0 + h v^0
+    _, (states, infos) = lax.scan(f, (state, prev0, state.v if extrapolate else None), path, length=n_steps)
     return states, infos
 
 
@@ -225,7 +255,9 @@ def rollout(cloth: Cloth, state: State, dt, n_steps: int, integrator=ImplicitEul
 
     Differentiable end to end: implicit steps carry implicit-function derivatives (one
     extra linear solve per step in reverse mode), explicit substeps are differentiated
-    through the scan.
+    through the scan.  Implicit steps start Newton from ``x^n + h (2 v^n - v^{n-1})``
+    (``ImplicitEuler.extrapolate``; ``x^0 + h v^0`` on the first step) where that lowers
+    the incremental potential.
 
     Args:
       checkpoint: rematerialise each step in reverse mode (``jax.checkpoint``), so the

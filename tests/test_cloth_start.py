@@ -1,0 +1,110 @@
+"""Newton's start: the constant-acceleration extrapolation that ``rollout`` uses, the
+``guess`` of ``step``, and the guard that keeps the lab's start wherever it is lower."""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxsim import cloth as C
+from jaxsim.cloth import _problem as pr
+from jaxsim.cloth._step import _implicit
+
+DT = 1 / 60
+INTEG = C.ImplicitEuler(solver="cg", tol=1e-6)
+LAB = dataclasses.replace(INTEG, extrapolate=False)
+STEPS = 6
+
+
+@pytest.fixture(scope="module")
+def moving():
+    """A soft 10x10 grid (scene B's constants) 20 steps into its swing, and the state before."""
+    c = C.grid(9, 0.2)
+    s = C.State.at_rest(c)
+    for _ in range(3):  # the compiled rollout of the tests below
+        states, _ = C.rollout(c, s, DT, STEPS, LAB)
+        s = C.State(states.x[-1], states.v[-1])
+    return c, C.State(states.x[-2], states.v[-2]), s
+
+
+@pytest.mark.parametrize("damping", [0.0, 0.3])
+def test_start_objective_is_the_incremental_potential_at_the_labs_start(moving, damping):
+    c, _, s = moving
+    c = C.replace(c, damping=damping)
+    p = pr.StepProblem.build(c, s.x, s.v, jnp.asarray(DT))
+    want = pr.incremental_potential(p.start, p)
+    np.testing.assert_allclose(float(pr.start_objective(p)), float(want), rtol=1e-12)
+
+
+def test_rollout_extrapolates_and_saves_a_newton_iteration(moving):
+    """On a smoothly swinging grid each step after the first starts one Newton iteration
+    closer (3 -> 2 at the lab's tolerances), and ends at the same converged positions."""
+    c, _, s = moving
+    ex, i_ex = C.rollout(c, s, DT, STEPS, INTEG)
+    lab, i_lab = C.rollout(c, s, DT, STEPS, LAB)
+    assert bool(jnp.all(i_ex.converged)) and bool(jnp.all(i_lab.converged))
+    n_ex, n_lab = np.asarray(i_ex.newton_iters), np.asarray(i_lab.newton_iters)
+    assert np.all(n_ex[1:] <= n_lab[1:] - 1), (n_ex, n_lab)
+    np.testing.assert_allclose(np.asarray(ex.x), np.asarray(lab.x), atol=1e-9)
+    np.testing.assert_allclose(np.asarray(ex.v), np.asarray(lab.v), atol=1e-7)
+
+
+def test_rollout_equals_stepping_by_hand_with_the_extrapolated_guess(moving):
+    c, _, s = moving
+    states, infos = C.rollout(c, s, DT, STEPS, INTEG)
+    prev_v, cur = s.v, s
+    for t in range(3):
+        guess = cur.x + DT * (2 * cur.v - prev_v)
+        prev_v = cur.v
+        cur, info = C.step(c, cur, DT, INTEG, guess=guess)
+        assert int(info.newton_iters) == int(infos.newton_iters[t])
+        np.testing.assert_allclose(np.asarray(cur.x), np.asarray(states.x[t]), rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("bad", ["far", "nan"])
+def test_a_worse_guess_keeps_the_labs_start(moving, bad):
+    """A guess 1 m off (huge spring energy), or a NaN one under jit, is not taken: the
+    step is the one without a guess, and nothing is NaN."""
+    c, _, s = moving
+    guess = s.x + 1.0 if bad == "far" else jnp.full_like(s.x, jnp.nan)
+    want, i_want = C.step(c, s, DT, INTEG)
+    got, i_got = jax.jit(lambda g: C.step(c, s, DT, INTEG, guess=g))(guess)
+    assert int(i_got.newton_iters) == int(i_want.newton_iters) and bool(i_got.converged)
+    np.testing.assert_allclose(np.asarray(got.x), np.asarray(want.x), rtol=0, atol=1e-13)
+    assert bool(jnp.all(jnp.isfinite(got.x)))
+
+
+def test_pinned_rows_of_the_guess_are_ignored(moving):
+    c, prev, s = moving
+    guess = s.x + DT * (2 * s.v - prev.v)
+    pinned = np.asarray(c.pinned)
+    assert pinned.any()
+    moved = guess.at[np.flatnonzero(pinned)].add(0.05)  # would stretch the pinned springs
+    a, ia = C.step(c, s, DT, INTEG, guess=guess)
+    b, ib = C.step(c, s, DT, INTEG, guess=moved)
+    np.testing.assert_array_equal(np.asarray(a.x), np.asarray(b.x))
+    np.testing.assert_array_equal(np.asarray(b.x)[pinned], np.asarray(s.x)[pinned])
+
+
+def test_colliders_ignore_the_guess():
+    """With colliders the step starts from x^n or its push-out, guess or not: the traced
+    step is the same program (and without colliders it is not)."""
+    start = lambda p: p.start + 0.01  # noqa: E731
+    for colliders, same in (((C.Plane(normal=(0.0, 1.0, 0.0), offset=-0.5),), True), ((), False)):
+        c = C.grid(3, 0.2, colliders=colliders)
+        s = C.State.at_rest(c)
+        plain = jax.make_jaxpr(lambda s: _implicit(c, s, jnp.asarray(DT), INTEG))(s)
+        guessed = jax.make_jaxpr(lambda s: _implicit(c, s, jnp.asarray(DT), INTEG, start=start))(s)
+        assert (str(plain) == str(guessed)) == same
+
+
+def test_bad_guesses_raise(moving):
+    c, _, s = moving
+    with pytest.raises(ValueError, match="guess"):
+        C.step(c, s, DT, INTEG, guess=s.x[:-1])
+    with pytest.raises(ValueError, match="guess"):
+        C.step(c, s, DT, INTEG, guess=s.x.at[0, 0].set(np.inf))
+    with pytest.raises((TypeError, ValueError), match="extrapolate"):
+        C.ImplicitEuler(extrapolate="yes")
