@@ -149,16 +149,7 @@ def check_inputs(cloth: Cloth, state: State, dt, integrator) -> State:
         raise ValueError("this scene is batched (from stack_scenes): use batch_rollout")
     if cloth.colliders and isinstance(integrator, ExplicitEuler):
         raise ValueError("colliders need ImplicitEuler: contact is a barrier in its incremental potential")
-    N = cloth.num_particles
-    out = []
-    for name, a in (("state.x", state.x), ("state.v", state.v)):
-        if is_concrete(a):
-            a = check_finite(name, check_shape(name, a, (N, 3)))
-            if not (np.issubdtype(a.dtype, np.floating) or np.issubdtype(a.dtype, np.integer)):
-                raise ValueError(f"{name} must hold real numbers, got dtype {a.dtype}")
-        elif tuple(a.shape) != (N, 3):
-            raise ValueError(f"{name} must have shape ({N}, 3), got {tuple(a.shape)}")
-        out.append(jnp.asarray(a, cloth.dtype))
+    out = [particle_array(name, a, cloth) for name, a in (("state.x", state.x), ("state.v", state.v))]
     if cloth.colliders and is_concrete(state.x) and is_concrete(*jax.tree_util.tree_leaves(cloth.colliders)):
         inside = count_inside(cloth.colliders, out[0], ~np.asarray(cloth.pinned))
         if inside:
@@ -168,6 +159,18 @@ def check_inputs(cloth: Cloth, state: State, dt, integrator) -> State:
             raise ValueError(f"dt must be a scalar, got shape {np.shape(dt)}")
         check_real("dt", dt, minimum=0.0, strict=True)
     return State(*out)
+
+
+def particle_array(name: str, a, cloth: Cloth) -> jax.Array:
+    """``a`` checked to be ``(N, 3)`` real and finite (finite where concrete), in the scene's dtype."""
+    N = cloth.num_particles
+    if is_concrete(a):
+        a = check_finite(name, check_shape(name, a, (N, 3)))
+        if not (np.issubdtype(a.dtype, np.floating) or np.issubdtype(a.dtype, np.integer)):
+            raise ValueError(f"{name} must hold real numbers, got dtype {a.dtype}")
+    elif tuple(a.shape) != (N, 3):
+        raise ValueError(f"{name} must have shape ({N}, 3), got {tuple(a.shape)}")
+    return jnp.asarray(a, cloth.dtype)
 
 
 def step(cloth: Cloth, state: State, dt, integrator=ImplicitEuler(), guess=None) -> tuple[State, StepInfo]:
@@ -193,17 +196,8 @@ def step(cloth: Cloth, state: State, dt, integrator=ImplicitEuler(), guess=None)
     memory in again at every call (35.1 -> 20.1 ms per step, README "Compilation and memory").
     """
     state = check_inputs(cloth, state, dt, integrator)
-    if guess is not None:
-        guess = _check_guess(guess, cloth.num_particles, cloth.dtype)
+    guess = None if guess is None else particle_array("guess", guess, cloth)
     return _step(cloth, state, jnp.asarray(dt, cloth.dtype), integrator, guess=guess)
-
-
-def _check_guess(guess, N: int, dtype) -> jax.Array:
-    if is_concrete(guess):
-        guess = check_finite("guess", check_shape("guess", guess, (N, 3)))
-    elif tuple(guess.shape) != (N, 3):
-        raise ValueError(f"guess must have shape ({N}, 3), got {tuple(guess.shape)}")
-    return jnp.asarray(guess, dtype)
 
 
 @functools.partial(jax.jit, static_argnames=("n_steps", "integrator", "checkpoint"))
@@ -211,12 +205,11 @@ def _rollout(cloth, state, dt, n_steps, integrator, checkpoint=False, path=None)
     extrapolate = isinstance(integrator, ImplicitEuler) and integrator.extrapolate and not cloth.colliders
 
     def f(carry, cols):
-        s, prev, v_prev = carry
-        v_prev = v_prev if extrapolate else None
+        s, prev, v_prev = carry  # v_prev: None unless extrapolating
         if cols is None:
             s2, info = _step(cloth, s, dt, integrator, v_prev=v_prev)
-        else:
-            s2, info = _step(dataclasses.replace(cloth, colliders=cols), s, dt, integrator, prev, v_prev=v_prev)
+        else:  # a collider path: no extrapolation (colliders)
+            s2, info = _step(dataclasses.replace(cloth, colliders=cols), s, dt, integrator, prev)
         return (s2, cols if cols is not None else prev, s.v if extrapolate else None), (s2, info)
 
     if checkpoint:
