@@ -108,3 +108,68 @@ def test_bad_guesses_raise(moving):
         C.step(c, s, DT, INTEG, guess=s.x.at[0, 0].set(np.inf))
     with pytest.raises((TypeError, ValueError), match="extrapolate"):
         C.ImplicitEuler(extrapolate="yes")
+
+
+def test_constant_jerk_start_takes_one_newton_iteration(moving):
+    """``extrapolate=2`` with PCG solved to ``cg_tol``: from the third step on, one Newton
+    iteration meets float64's gradient test on the swinging grid, where the
+    constant-acceleration start needs two; same converged positions."""
+    c, _, s = moving
+    one = dataclasses.replace(INTEG, tol=None, cg_forcing=0.0)
+    two = dataclasses.replace(one, extrapolate=2)
+    x1, i1 = C.rollout(c, s, DT, STEPS, one)
+    x2, i2 = C.rollout(c, s, DT, STEPS, two)
+    assert bool(jnp.all(i1.converged)) and bool(jnp.all(i2.converged))
+    n1, n2 = np.asarray(i1.newton_iters), np.asarray(i2.newton_iters)
+    assert np.all(n2[:2] == n1[:2]) and np.all(n2[2:] == 1) and np.all(n1[2:] >= 2), (n1, n2)
+    np.testing.assert_allclose(np.asarray(x2.x), np.asarray(x1.x), atol=1e-9)
+
+
+def test_constant_jerk_rollout_equals_stepping_by_hand(moving):
+    c, _, s = moving
+    integ = dataclasses.replace(INTEG, tol=None, cg_forcing=0.0, extrapolate=2)
+    states, infos = C.rollout(c, s, DT, 4, integ)
+    vs, cur = [s.v], s
+    for t in range(4):
+        if t == 0:
+            guess = cur.x + DT * cur.v
+        elif t == 1:
+            guess = cur.x + DT * (2 * cur.v - vs[-2])
+        else:
+            guess = cur.x + DT * (3 * cur.v - 3 * vs[-2] + vs[-3])
+        cur, info = C.step(c, cur, DT, integ, guess=guess)
+        vs.append(cur.v)
+        np.testing.assert_allclose(np.asarray(cur.x), np.asarray(states.x[t]), atol=1e-12)
+        assert int(info.newton_iters) == int(infos.newton_iters[t])
+
+
+@pytest.mark.parametrize("bad", [3, -1, 1.5, "yes", None])
+def test_bad_extrapolation_orders_raise(bad):
+    with pytest.raises(ValueError, match="extrapolate"):
+        C.ImplicitEuler(extrapolate=bad)
+
+
+def test_residual_stop_takes_no_iteration_at_equilibrium_and_one_fewer_in_float32(moving):
+    """``tol=None`` (the default) stops on the gradient test alone: a weightless cloth
+    stretched by 1% between pinned borders, at rest, is converged before any iteration,
+    where the lab's step test takes one; in float32
+    the swinging grid's steps take one iteration fewer than with the step test, and end at
+    the same positions to float32's resolution."""
+    n = 6  # two rows pinned along each edge: every free particle has all its springs (bending too)
+    edge = [i * (n + 1) + j for i in range(n + 1) for j in range(n + 1) if min(i, j, n - i, n - j) < 2]
+    c0 = C.grid(n, 0.2, gravity=0.0, pins=edge)
+    rest = np.asarray(c0.rest)
+    x0 = rest.mean(axis=0) + 1.01 * (rest - rest.mean(axis=0))
+    s0 = C.State(jnp.asarray(x0), jnp.zeros_like(jnp.asarray(x0)))
+    _, i0 = C.step(c0, s0, DT, dataclasses.replace(INTEG, tol=None))
+    _, i_tol = C.step(c0, s0, DT, INTEG)
+    assert int(i0.newton_iters) == 0 and bool(i0.converged) and int(i_tol.newton_iters) >= 1
+    c, _, s = moving
+    c32 = jax.tree_util.tree_map(lambda a: a.astype(np.float32) if jnp.issubdtype(a.dtype, jnp.floating) else a, c)
+    s32 = C.State(s.x.astype(np.float32), s.v.astype(np.float32))
+    xr, ir = C.rollout(c32, s32, DT, STEPS, dataclasses.replace(INTEG, tol=None))
+    xt, it = C.rollout(c32, s32, DT, STEPS, INTEG)
+    assert bool(jnp.all(ir.converged)) and bool(jnp.all(it.converged))
+    nr, nt = np.asarray(ir.newton_iters), np.asarray(it.newton_iters)
+    assert np.all(nr[1:] <= nt[1:] - 1), (nr, nt)
+    np.testing.assert_allclose(np.asarray(xr.x), np.asarray(xt.x), atol=1e-6)

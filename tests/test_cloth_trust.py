@@ -259,21 +259,23 @@ def test_float32_fast_cloth_converges_like_at_rest():
     """An 8x8 cloth (1 kg particles, k = 1e4, unpinned), stretched by 0.01% and thrown at
     30 m/s: a step moves it 0.5 m while its springs change by a few micrometres.  The
     unknown is the deviation ``w`` from the prediction ``h v^n + h^2 g``, so float32
-    resolves a spring's change to about ``eps |w|``: every step converges with a relative
-    gradient 10x below the test (measured: below 4e-7), and moves as float64's.  (With
+    resolves a spring's change to about ``eps |w|``: every step converges at a relative
+    gradient 10x below float32's default test (measured: below 4e-7 with the lab's step
+    test), and moves as float64's.  (With
     the displacement ``u`` as the unknown, the resolution was ``eps |u|``, about 6e-8 m:
     the relative gradient stalled at 1e-4 and 4 of the 5 steps said converged=False.)"""
+    rtol = 0.1 * C.ImplicitEuler().resolved_rtol(np.float32)
     out = {}
     for dtype in (np.float64, np.float32):
         c = C.grid(7, 0.2, mass=1.0, stiffness=1e4, gravity=9.8, pins=[], dtype=dtype)
         rest = np.asarray(c.rest, np.float64)
         x0 = (rest.mean(axis=0) + 1.0001 * (rest - rest.mean(axis=0))).astype(dtype)
         v0 = np.broadcast_to(np.array([30.0, 0.0, 0.0], dtype), x0.shape)
-        states, infos = C.rollout(c, C.State(jnp.asarray(x0), jnp.asarray(v0)), 1 / 60, 5, C.ImplicitEuler(solver="cg"))
+        integ = C.ImplicitEuler(solver="cg", rtol=rtol if dtype == np.float32 else None)
+        states, infos = C.rollout(c, C.State(jnp.asarray(x0), jnp.asarray(v0)), 1 / 60, 5, integ)
         out[dtype] = (np.asarray(states.x[-1], np.float64), infos)
     x64, i64 = out[np.float64]
     x32, i32 = out[np.float32]
-    rtol = C.ImplicitEuler().resolved_rtol(np.float32)
     assert bool(jnp.all(i64.converged)) and bool(jnp.all(i32.converged))
-    assert float(jnp.max(i32.rel_grad)) <= 0.1 * rtol, np.asarray(i32.rel_grad)
+    assert float(jnp.max(i32.rel_grad)) <= rtol, np.asarray(i32.rel_grad)
     assert np.max(np.abs(x32 - x64)) <= 1e-5

@@ -102,10 +102,11 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol, start=None) -> NewtonS
     """Minimise ``g(., p)`` from ``w = -y`` (the displacement 0, the lab's start), or from
     ``start`` (``(N, 3)``, a deviation ``w``; pinned rows ignored) where ``g`` is lower there.
 
-    Stops when the lab's step test ``max|alpha dx| / h < tol`` holds and the gradient is
-    small (``rel <= rtol``), when the gradient is at rounding level, when the step is
-    at the rounding level of ``w`` (no further progress is possible), or after
-    ``newton_iters`` iterations.  Runs on ``stop_gradient`` inputs: derivatives come from
+    Stops when the gradient is small (``rel <= rtol``; at the start already, with
+    ``integ.tol=None``, taking no iteration), and with a ``tol`` once the lab's step test
+    ``max|alpha dx| / h < tol`` holds too; when the gradient is at rounding level, when
+    the step is at the rounding level of ``w`` (no further progress is possible), or
+    after ``newton_iters`` iterations.  Runs on ``stop_gradient`` inputs: derivatives come from
     the implicit function theorem instead (``_implicit_diff``).
     """
     c, h = p.cloth, p.h
@@ -266,10 +267,12 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol, start=None) -> NewtonS
         ok = jnp.all(jnp.isfinite(w_new)) & jnp.isfinite(g_new) & jnp.all(jnp.isfinite(gvec))
         taken = ok & ~rejected
         dmax = jnp.max(jnp.abs(step))
-        small_step = dmax / h < integ.tol
+        converged = rel <= rtol
+        if integ.tol is not None:  # the lab's step test too, unless at the gradient's noise floor
+            floor = rel > FLOOR_RATIO * s.rel  # no longer improving
+            converged = converged & ((dmax / h < integ.tol) | floor)
         stalled = dmax <= 4 * eps * jnp.max(jnp.abs(w_new * free))  # nothing left that the dtype can resolve
-        floor = (rel <= rtol) & (rel > FLOOR_RATIO * s.rel)  # converged, and no longer improving
-        done = ((small_step & (rel <= rtol)) | floor | stalled | (rel <= 4 * eps)) & taken | ~ok
+        done = (converged | stalled | (rel <= 4 * eps)) & taken | ~ok
         keep = lambda new, old: jnp.where(taken, new, old)  # noqa: E731
         trace = s.trace
         if trace is not None:  # a failed or rejected step is not taken
@@ -293,9 +296,10 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol, start=None) -> NewtonS
         w0, f0, g0, t0 = lax.cond(better, lambda: (wg, fg, gg, tg), lambda: (w0,) + evaluate(w0))
         cg0 = jnp.where(better, 0.0, h * p.v0 * free)
     z = jnp.zeros((), dtype)
-    s0 = NewtonState(w=w0, g=f0, grad=g0, rel=pr.relative_gradient(g0, w0, p, t0), guess=cg0,
+    rel0 = pr.relative_gradient(g0, w0, p, t0)
+    s0 = NewtonState(w=w0, g=f0, grad=g0, rel=rel0, guess=cg0,
                      it=jnp.int32(0), cg=jnp.int32(0), bt=jnp.int32(0), alpha=z, res=z, terms=t0,
                      indefinite=jnp.array(False), stationary_below=jnp.asarray(STATIONARY_REL, dtype),
-                     done=jnp.array(False), fail=jnp.array(False),
+                     done=(rel0 <= rtol) if integ.tol is None else jnp.array(False), fail=jnp.array(False),
                      trace=NewtonTrace.empty(integ.newton_iters, dtype) if integ.trace else None)
     return lax.while_loop(lambda s: (s.it < integ.newton_iters) & ~s.done, body, s0)

@@ -14,6 +14,7 @@ from .._dataclass import is_concrete, pytree_dataclass
 from .._validate import check_bool, check_finite, check_int, check_real, check_shape
 from . import _problem as pr
 from ._explicit import bounded, explicit
+from ._extrapolate import History
 from ._implicit_diff import solution
 from ._integrators import ExplicitEuler, ImplicitEuler
 from ._newton import newton
@@ -119,16 +120,17 @@ def _implicit(cloth: Cloth, state: State, dt, integ: ImplicitEuler, prev=None, s
 
 
 @functools.partial(jax.jit, static_argnames=("integrator",))
-def _step(cloth, state, dt, integrator, prev=None, guess=None, v_prev=None):
+@functools.partial(jax.jit, static_argnames=("integrator",))
+def _step(cloth, state, dt, integrator, prev=None, guess=None, history=None):
     """One step; an implicit one may start Newton from ``guess`` (end-of-step positions,
-    ``(N, 3)``) or from the extrapolation ``x^n + h (2 v^n - v_prev)`` (``v_prev (N, 3)``)."""
+    ``(N, 3)``) or from the extrapolation of a :class:`History`."""
     if isinstance(integrator, ExplicitEuler):
         return _explicit(cloth, state, dt, integrator)
     start = None
     if guess is not None:
         start = lambda p: (guess - p.x0) - p.prediction  # noqa: E731
-    elif v_prev is not None:  # the deviation h (v^n - v_prev) - h^2 g, without rounding x
-        start = lambda p: p.h * (p.v0 - v_prev) - p.h**2 * p.cloth.gravity  # noqa: E731
+    elif history is not None:
+        start = history.start
     return _implicit(cloth, state, dt, integrator, prev, start)
 
 
@@ -205,18 +207,18 @@ def _rollout(cloth, state, dt, n_steps, integrator, checkpoint=False, path=None)
     extrapolate = isinstance(integrator, ImplicitEuler) and integrator.extrapolate and not cloth.colliders
 
     def f(carry, cols):
-        s, prev, v_prev = carry  # v_prev: None unless extrapolating
+        s, prev, history = carry  # history: None unless extrapolating
         if cols is None:
-            s2, info = _step(cloth, s, dt, integrator, v_prev=v_prev)
+            s2, info = _step(cloth, s, dt, integrator, history=history)
         else:  # a collider path: no extrapolation (colliders)
             s2, info = _step(dataclasses.replace(cloth, colliders=cols), s, dt, integrator, prev)
-        return (s2, cols if cols is not None else prev, s.v if extrapolate else None), (s2, info)
+        return (s2, cols if cols is not None else prev, None if history is None else history.advance(s.v)), (s2, info)
 
     if checkpoint:
         f = jax.checkpoint(f, prevent_cse=False)
     prev0 = cloth.colliders if path is not None else None
-    # the first step extrapolates with v_prev = v^0: from x^0 + h v^0
-    _, (states, infos) = lax.scan(f, (state, prev0, state.v if extrapolate else None), path, length=n_steps)
+    history = History.first(state.v, integrator.extrapolate) if extrapolate else None
+    _, (states, infos) = lax.scan(f, (state, prev0, history), path, length=n_steps)
     return states, infos
 
 
@@ -249,8 +251,9 @@ def rollout(cloth: Cloth, state: State, dt, n_steps: int, integrator=ImplicitEul
     Differentiable end to end: implicit steps carry implicit-function derivatives (one
     extra linear solve per step in reverse mode), explicit substeps are differentiated
     through the scan.  Implicit steps start Newton from ``x^n + h (2 v^n - v^{n-1})``
-    (``ImplicitEuler.extrapolate``; ``x^0 + h v^0`` on the first step) where that lowers
-    the incremental potential.
+    (``ImplicitEuler.extrapolate``; ``x^0 + h v^0`` on the first step; with
+    ``extrapolate=2`` the constant-jerk extrapolation from the third step on) where that
+    lowers the incremental potential.
 
     Args:
       checkpoint: rematerialise each step in reverse mode (``jax.checkpoint``), so the
