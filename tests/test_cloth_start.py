@@ -13,7 +13,7 @@ from jaxsim.cloth import _problem as pr
 from jaxsim.cloth._step import _implicit
 
 DT = 1 / 60
-INTEG = C.ImplicitEuler(solver="cg", tol=1e-6)
+INTEG = C.ImplicitEuler(solver="cg", tol=1e-6, extrapolate=1)
 LAB = dataclasses.replace(INTEG, extrapolate=False)
 STEPS = 6
 
@@ -141,6 +141,21 @@ def test_constant_jerk_rollout_equals_stepping_by_hand(moving):
         vs.append(cur.v)
         np.testing.assert_allclose(np.asarray(cur.x), np.asarray(states.x[t]), atol=1e-12)
         assert int(info.newton_iters) == int(infos.newton_iters[t])
+
+
+def test_auto_takes_the_constant_jerk_start_after_a_smooth_step(moving):
+    """The default ``extrapolate="auto"``: linear until a step converges within
+    ``SMOOTH_NEWTON`` iterations, then the constant-jerk start with its first PCG solve
+    aimed at the gradient test, one Newton iteration per step on the swinging grid."""
+    c, _, s = moving
+    auto = C.ImplicitEuler(solver="cg")
+    assert auto.extrapolate == "auto" and C.ImplicitEuler(solver="cg", extrapolate=True) == auto
+    xa, ia = C.rollout(c, s, DT, STEPS, auto)
+    xl, il = C.rollout(c, s, DT, STEPS, dataclasses.replace(auto, extrapolate=1))
+    assert bool(jnp.all(ia.converged)) and bool(jnp.all(il.converged))
+    na, nl = np.asarray(ia.newton_iters), np.asarray(il.newton_iters)
+    assert np.all(na[:2] == nl[:2]) and np.all(na[2:] == 1) and np.all(nl[2:] >= 2), (na, nl)
+    np.testing.assert_allclose(np.asarray(xa.x), np.asarray(xl.x), atol=1e-9)
 
 
 @pytest.mark.parametrize("bad", [3, -1, 1.5, "yes", None])

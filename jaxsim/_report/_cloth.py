@@ -235,7 +235,7 @@ def cost_growth(doc: Doc) -> None:
     dense_max = 16 if quick else 32
     doc.md("## Cloth 4. Cost growth",
            "Lab-like grids (m = 1, k = 100, spacing 0.2, d = 0.2, g = 0.3, two pinned corners, dt = 1/60), time per "
-           "converged implicit step (Newton tol 1e-6, CG tol 1e-6) from a state after 10 steps, median of a warm "
+           "converged implicit step (default `ImplicitEuler`: the gradient test, CG tol 1e-6) from a state after 10 steps, median of a warm "
            f"10-step rollout, float64.  Dense up to {dense_max}x{dense_max} particles.")
     rows = []
     for n in sides:

@@ -93,18 +93,19 @@ class ImplicitEuler:
         objective, relative gradient, step, line search, CG iterations and which
         Hessian gave the direction).  Off by default: the log is written inside the
         Newton loop.
-      extrapolate: ``rollout`` starts each step's Newton solve from the constant-acceleration
-        extrapolation ``x^n + h (2 v^n - v^{n-1})`` (``x^0 + h v^0`` on the first step)
-        wherever its incremental potential is lower than at the lab's start ``x^n``.  On a
-        smoothly moving cloth it is one Newton iteration closer to the solution (README,
-        "Extrapolated start").  ``2``: the constant-jerk extrapolation
-        ``x^n + h (3 v^n - 3 v^{n-1} + v^{n-2})`` (linear on the second step), for smooth
-        motion: on a 32x32 lab-like grid one Newton iteration from it meets float64's
-        gradient test (relative gradient 3e-10, against 5e-9 to 1e-8 from the linear
-        one) when PCG solves to ``cg_tol`` (``cg_forcing=0``); on stiff, buckling cloth it
-        costs iterations (README, "Extrapolated start").  ``False`` (``0``): the lab's
-        start.  Scenes with colliders always start from ``x^n`` (or its push-out off a
-        moving collider).  ``step`` takes the same start as ``guess``.
+      extrapolate: where ``rollout`` starts each step's Newton solve (the lab's start
+        ``x^n`` is kept wherever its incremental potential is lower; README, "Extrapolated
+        start").  ``1``: the constant-acceleration extrapolation
+        ``x^n + h (2 v^n - v^{n-1})`` (``x^0 + h v^0`` on the first step); on a smoothly
+        moving cloth one Newton iteration closer to the solution.  ``2``: from the third
+        step on the constant-jerk extrapolation ``x^n + h (3 v^n - 3 v^{n-1} + v^{n-2})``,
+        whose first PCG solve runs to ``cg_tol``: on a 32x32 lab-like grid one Newton
+        iteration from it meets float64's gradient test (relative gradient 3e-10, against
+        5e-9 to 1e-8 from the linear one), but on stiff, buckling cloth it costs
+        iterations.  ``"auto"`` (default, also ``True``): ``2`` after a step that converged
+        within ``_extrapolate.SMOOTH_NEWTON`` iterations, else ``1``.  ``False`` (``0``):
+        the lab's start.  Scenes with colliders always start from ``x^n`` (or its push-out
+        off a moving collider).  ``step`` takes the same start as ``guess``.
     """
 
     solver: str = "auto"
@@ -119,7 +120,7 @@ class ImplicitEuler:
     cg_max_iters: int = 500
     max_backtracks: int = 30
     trace: bool = False
-    extrapolate: bool | int = True
+    extrapolate: bool | int | str = "auto"
 
     def __post_init__(self):
         if not isinstance(self.solver, str) or self.solver not in SOLVERS:
@@ -140,12 +141,13 @@ class ImplicitEuler:
             set_("rtol", check_real("rtol", self.rtol, minimum=0.0))
         set_("line_search", check_bool("line_search", self.line_search))
         set_("trace", check_bool("trace", self.trace))
-        if isinstance(self.extrapolate, (bool, np.bool_)):
-            set_("extrapolate", int(self.extrapolate))
-        elif not isinstance(self.extrapolate, (int, np.integer)) or self.extrapolate not in (0, 1, 2):
-            raise ValueError(f"extrapolate must be True, False, 0, 1 or 2, got {self.extrapolate!r}")
-        else:
-            set_("extrapolate", int(self.extrapolate))
+        e = self.extrapolate
+        if isinstance(e, (bool, np.bool_)):
+            set_("extrapolate", "auto" if e else 0)
+        elif isinstance(e, (int, np.integer)) and e in (0, 1, 2):
+            set_("extrapolate", int(e))
+        elif not (isinstance(e, str) and e == "auto"):
+            raise ValueError(f"extrapolate must be 'auto', True, False, 0, 1 or 2, got {e!r}")
         if self.project_psd != "auto":
             set_("project_psd", check_bool("project_psd (True, False or 'auto')", self.project_psd))
 

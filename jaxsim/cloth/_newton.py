@@ -70,6 +70,8 @@ class NewtonState:
         minimising solve (it was found indefinite).
       stationary_below: ``()`` the relative gradient below which a stationary-point step is
         tried (``STATIONARY_REL``, lowered after a failed try).
+      tight: ``()`` bool, the first PCG solve aims at the gradient test (``newton``'s
+        ``tight_first`` where its start was taken).
       done: ``()`` bool, the loop has stopped.
       fail: ``()`` bool, a step produced non-finite values (and was not taken).
       trace: the per-iteration log with ``ImplicitEuler(trace=True)``, else ``None``.
@@ -88,6 +90,7 @@ class NewtonState:
     terms: pr.SpringTerms
     indefinite: jax.Array
     stationary_below: jax.Array
+    tight: jax.Array
     done: jax.Array
     fail: jax.Array
     trace: NewtonTrace | None = None
@@ -98,9 +101,12 @@ def _safe_ratio(num, den):
     return jnp.where(jnp.isfinite(r), r, jnp.inf)
 
 
-def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol, start=None) -> NewtonState:
+def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol, start=None, tight_first=False) -> NewtonState:
     """Minimise ``g(., p)`` from ``w = -y`` (the displacement 0, the lab's start), or from
     ``start`` (``(N, 3)``, a deviation ``w``; pinned rows ignored) where ``g`` is lower there.
+    ``tight_first``: ``()`` bool, a start one iteration from the solution: the first PCG
+    solve from it runs to the relative residual ``rtol / rel`` that the gradient test needs
+    (at least ``cg_tol``) where that is below the forcing term.
 
     Stops when the gradient is small (``rel <= rtol``; at the start already, with
     ``integ.tol=None``, taking no iteration), and with a ``tol`` once the lab's step test
@@ -247,6 +253,8 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol, start=None) -> NewtonS
         tol = integ.cg_tol
         if integ.cg_forcing > 0 and integ.newton_iters > 1:  # inexact Newton (Eisenstat & Walker 1996)
             tol = jnp.maximum(integ.cg_tol, jnp.minimum(integ.cg_forcing, s.rel))
+            # from a start one iteration away: the residual reduction the gradient test needs
+            tol = jnp.where(s.tight & (s.it == 0), jnp.maximum(integ.cg_tol, jnp.minimum(tol, rtol / s.rel)), tol)
         parts = hessian_parts(s.w, s.terms)
         tried = jnp.array(False)
         if projection == "auto":  # solve for the stationary point once Newton is close to one
@@ -282,10 +290,11 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol, start=None) -> NewtonS
                            guess=jnp.where(taken, step, jnp.where(rejected, s.guess, 0.0)), it=s.it + 1,
                            cg=s.cg + k_cg, bt=s.bt + k_ls, alpha=a, res=res,
                            terms=jax.tree_util.tree_map(keep, terms, s.terms),
-                           indefinite=jnp.where(rejected, s.indefinite, which != 0), stationary_below=below,
+                           indefinite=jnp.where(rejected, s.indefinite, which != 0), stationary_below=below, tight=s.tight,
                            done=done, fail=s.fail | ~ok, trace=trace)
 
     w0 = p.start
+    tight = jnp.array(False)
     if start is None or p.contact is not None:
         cg0 = h * p.v0 * free  # the first direction is about the displacement h v^n
         f0, g0, t0 = evaluate(w0)
@@ -295,11 +304,12 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol, start=None) -> NewtonS
         better = fg < pr.start_objective(p)
         w0, f0, g0, t0 = lax.cond(better, lambda: (wg, fg, gg, tg), lambda: (w0,) + evaluate(w0))
         cg0 = jnp.where(better, 0.0, h * p.v0 * free)
+        tight = better & tight_first
     z = jnp.zeros((), dtype)
     rel0 = pr.relative_gradient(g0, w0, p, t0)
     s0 = NewtonState(w=w0, g=f0, grad=g0, rel=rel0, guess=cg0,
                      it=jnp.int32(0), cg=jnp.int32(0), bt=jnp.int32(0), alpha=z, res=z, terms=t0,
-                     indefinite=jnp.array(False), stationary_below=jnp.asarray(STATIONARY_REL, dtype),
+                     indefinite=jnp.array(False), stationary_below=jnp.asarray(STATIONARY_REL, dtype), tight=tight,
                      done=(rel0 <= rtol) if integ.tol is None else jnp.array(False), fail=jnp.array(False),
                      trace=NewtonTrace.empty(integ.newton_iters, dtype) if integ.trace else None)
     return lax.while_loop(lambda s: (s.it < integ.newton_iters) & ~s.done, body, s0)

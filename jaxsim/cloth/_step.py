@@ -94,7 +94,7 @@ def _explicit(cloth: Cloth, state: State, dt, integ: ExplicitEuler):
     return State(jnp.where(valid, new.x, state.x), jnp.where(valid, new.v, state.v)), info
 
 
-def _implicit(cloth: Cloth, state: State, dt, integ: ImplicitEuler, prev=None, start=None):
+def _implicit(cloth: Cloth, state: State, dt, integ: ImplicitEuler, prev=None, start=None, tight=False):
     x0, v0, h = state.x, state.v, dt
     valid = valid_inputs(cloth, dt)
     p = pr.StepProblem.build(cloth, x0, v0, h, prev)
@@ -104,7 +104,7 @@ def _implicit(cloth: Cloth, state: State, dt, integ: ImplicitEuler, prev=None, s
         start = lax.stop_gradient(start(p_const))
     else:
         start = None
-    s = newton(p_const, integ, rtol, start)
+    s = newton(p_const, integ, rtol, start, tight_first=tight)
     w = solution(integ, s.w, p)
     free = p.free > 0
     u = jnp.where(free, p.displacement(w), 0.0)  # pins do not move
@@ -120,18 +120,17 @@ def _implicit(cloth: Cloth, state: State, dt, integ: ImplicitEuler, prev=None, s
 
 
 @functools.partial(jax.jit, static_argnames=("integrator",))
-@functools.partial(jax.jit, static_argnames=("integrator",))
 def _step(cloth, state, dt, integrator, prev=None, guess=None, history=None):
     """One step; an implicit one may start Newton from ``guess`` (end-of-step positions,
     ``(N, 3)``) or from the extrapolation of a :class:`History`."""
     if isinstance(integrator, ExplicitEuler):
         return _explicit(cloth, state, dt, integrator)
-    start = None
+    start, tight = None, False
     if guess is not None:
         start = lambda p: (guess - p.x0) - p.prediction  # noqa: E731
     elif history is not None:
-        start = history.start
-    return _implicit(cloth, state, dt, integrator, prev, start)
+        start, tight = history.start, history.jerk
+    return _implicit(cloth, state, dt, integrator, prev, start, tight)
 
 
 def check_inputs(cloth: Cloth, state: State, dt, integrator) -> State:
@@ -212,7 +211,8 @@ def _rollout(cloth, state, dt, n_steps, integrator, checkpoint=False, path=None)
             s2, info = _step(cloth, s, dt, integrator, history=history)
         else:  # a collider path: no extrapolation (colliders)
             s2, info = _step(dataclasses.replace(cloth, colliders=cols), s, dt, integrator, prev)
-        return (s2, cols if cols is not None else prev, None if history is None else history.advance(s.v)), (s2, info)
+        history = None if history is None else history.advance(s.v, info, integrator.extrapolate)
+        return (s2, cols if cols is not None else prev, history), (s2, info)
 
     if checkpoint:
         f = jax.checkpoint(f, prevent_cse=False)
