@@ -9,8 +9,8 @@ from .._dataclass import pytree_dataclass
 
 #: ``ImplicitEuler(extrapolate="auto")``: a step that converged within this many Newton
 #: iterations marks the motion as smooth, and the next step starts from the constant-jerk
-#: extrapolation with a first PCG solve to ``cg_tol`` (one iteration is then expected to
-#: meet the gradient test; README, "Extrapolated start").
+#: extrapolation with a first PCG solve aimed at the gradient test (one iteration is then
+#: expected to meet it; ``_newton.newton``'s ``tight_first``; README, "Extrapolated start").
 SMOOTH_NEWTON = 2
 
 

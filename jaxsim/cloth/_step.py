@@ -34,10 +34,11 @@ class StepInfo:
       rel_grad: ``max_i |grad_i g| / max_i scale_i``, the gradient relative to the size
         of the terms it sums (inertia ``m/h^2 |x - y|``, gravity, spring and damping
         forces); 0 for explicit Euler.
-      step_size: line-search step ``alpha`` of the last Newton iteration.
+      step_size: line-search step ``alpha`` of the last Newton iteration (0 when the start
+        already met the gradient test and no iteration ran).
       backtracks: line-search halvings summed over the Newton iterations.
       residual: relative linear-solve residual of the last Newton iteration (``inf`` if
-        the solve broke down).
+        the solve broke down; 0 when no iteration ran).
       converged: implicit: ``rel_grad <= rtol`` at the returned positions (the step
         solves backward Euler to that accuracy); explicit: same as ``stable``.
       stable: the step was taken: its inputs were valid, and the new state is finite,
@@ -251,9 +252,10 @@ def rollout(cloth: Cloth, state: State, dt, n_steps: int, integrator=ImplicitEul
     Differentiable end to end: implicit steps carry implicit-function derivatives (one
     extra linear solve per step in reverse mode), explicit substeps are differentiated
     through the scan.  Implicit steps start Newton from ``x^n + h (2 v^n - v^{n-1})``
-    (``ImplicitEuler.extrapolate``; ``x^0 + h v^0`` on the first step; with
-    ``extrapolate=2`` the constant-jerk extrapolation from the third step on) where that
-    lowers the incremental potential.
+    (``ImplicitEuler.extrapolate``; ``x^0 + h v^0`` on the first step), or from the
+    constant-jerk extrapolation (``extrapolate=2`` from the third step on, ``"auto"``
+    after a step that converged within two iterations), where that lowers the
+    incremental potential.
 
     Args:
       checkpoint: rematerialise each step in reverse mode (``jax.checkpoint``), so the
