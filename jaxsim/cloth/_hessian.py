@@ -14,6 +14,7 @@ import functools
 import jax
 import jax.numpy as jnp
 
+from .._fusion import materialized
 from . import _contact as ct
 from . import _planes as pl
 from . import _problem as pr
@@ -128,7 +129,9 @@ class HessianOps:
 
     def preconditioner(self, A_psd, C, C_cg):
         """Block Jacobi, or the two-level cycle of ``_coarse`` around it (SPD)."""
-        D = None if self.st is None else self.diagonal(A_psd, C_cg)
+        # the diagonal blocks written once: the block inverse (and the coarse matrix) read
+        # every entry several times (``_fusion``)
+        D = None if self.st is None else materialized(self.diagonal(A_psd, C_cg))
         jacobi = self.jacobi(A_psd, C_cg, D)
         if self.kind == "jacobi":
             return jacobi

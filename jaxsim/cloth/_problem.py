@@ -28,6 +28,7 @@ import jax.numpy as jnp
 
 from .._dataclass import pytree_dataclass
 from .._dtype import tiny
+from .._fusion import materialized
 from . import _contact as ct
 from . import _energy as en
 from ._scene import Cloth, spring_diff, spring_sum
@@ -155,10 +156,14 @@ class SpringTerms:
 
 def spring_terms(w, p: StepProblem) -> SpringTerms:
     """:class:`SpringTerms` at the deviation ``w (N, 3)``."""
-    dd = p.spring_change(w)
+    # written once and read by every use (``_fusion``): the spring changes, and the
+    # direction, stretch and force that the objective, the gradient and the force scale
+    # each read at both ends of every spring
+    dd = materialized(p.spring_change(w))
     s = p.s0 + en.stretch_increment(p.d0, p.l0, dd)
     k = p.cloth.stiffness
     e, dpsi, along, across = en.radial_parts(p.d0 + dd, s, k)
+    e, s, dpsi = materialized(e), materialized(s), materialized(dpsi)
     return SpringTerms(e, s, dpsi, along, across, None if p.e0 is None else dot(p.e0, dd))
 
 
@@ -204,7 +209,7 @@ def gradient(w, p: StepProblem, t: SpringTerms):
     f = t.dpsi[:, None] * t.e
     if t.damp is not None:
         f = f + (p.d_over_h * t.damp)[:, None] * p.e0
-    out = c.mass[:, None] / p.h**2 * w + spring_sum(c, f)
+    out = c.mass[:, None] / p.h**2 * w + spring_sum(c, materialized(f))
     if p.contact is not None:
         out = out + jax.grad(_contact_potential)(w, p)
     return out
@@ -225,7 +230,7 @@ def force_scale(w, p: StepProblem, t: SpringTerms | None = None):
         f = f + jnp.abs(p.d_over_h * t.damp)
     m = c.mass
     inertia = m / p.h**2 * en._length(w + p.h**2 * c.gravity)
-    scale = inertia + m * en._length(c.gravity) + spring_sum(c, f, signed=False)
+    scale = inertia + m * en._length(c.gravity) + spring_sum(c, materialized(f), signed=False)
     if p.contact is not None:
         scale = scale + ct.force_magnitudes(p.displacement(w), p.x0, c, p.contact, p.free)
     return scale
@@ -254,7 +259,7 @@ def condition_bound(p: StepProblem, t: SpringTerms):
         a = a + p.d_over_h
     inertia = c.mass / p.h**2
     free = p.free[:, 0] > 0
-    hi = jnp.max(jnp.where(free, inertia + 2.0 * spring_sum(c, a, signed=False), 0.0))
+    hi = jnp.max(jnp.where(free, inertia + 2.0 * spring_sum(c, materialized(a), signed=False), 0.0))
     lo = jnp.min(jnp.where(free, inertia, jnp.inf))
     r = hi / lo
     return jnp.where(jnp.any(free), jnp.where(r >= 1.0, r, jnp.inf), 1.0)
