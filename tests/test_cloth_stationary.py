@@ -1,5 +1,8 @@
 """Newton's stationary-point steps (``_newton.STATIONARY_REL``) and PCG through negative curvature."""
 
+import dataclasses
+import os
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -86,3 +89,33 @@ def test_buckling_steps_of_scene_c_64_converge_at_a_stationary_point():
     for s in (8, 9):
         x0, v0 = np.asarray(states.x[s - 1]), np.asarray(states.v[s - 1])
         assert _backward_euler_residual(c, x0, v0, states.x[s], h) < 1e-8
+
+
+def test_a_stationary_phase_converges_where_its_first_step_raises_the_gradient(monkeypatch):
+    """Scene C 32x32 k = 1e5, float64: the step 35 steps from rest (state and extrapolated
+    start saved from a rollout, ``tests/data``).  Near its solution the exact Hessian has an
+    eigenvalue of -0.005 against the inertia's 0.88: the shifted Hessian moves 3% of the way
+    per iteration, and the full step to the stationary point first raises the relative
+    gradient (6.6e-9 to 2.8e-6) before the next ones converge quadratically.  Single
+    stationary-point tries (the first rejected) left the step at the 20-iteration cap;
+    the phase converges within it, to positions that solve backward Euler's equations."""
+    from jaxsim.cloth import _newton
+
+    c = stiff_grid(31, k=1e5)
+    h = 1 / 30
+    data = np.load(os.path.join(os.path.dirname(__file__), "data", "c32_k1e5_hard_step.npz"))
+    state = C.State(data["x"], data["v"])
+    integ = C.ImplicitEuler(solver="cg", preconditioner="two_level", trace=True)
+    new, info = C.step(c, state, h, integ, guess=data["guess"])
+    n = int(info.newton_iters)
+    assert bool(info.converged) and n < 20, (n, float(info.rel_grad))
+    assert _backward_euler_residual(c, data["x"], data["v"], new.x, h) < 1e-8
+    used = np.asarray(info.trace.hessian[:n])
+    rel = np.asarray(info.trace.rel[:n])
+    phase = np.flatnonzero(used == C.HESSIANS.index("stationary"))
+    assert len(phase) >= 3 and rel[phase[0]] > 10 * rel[phase[0] - 1]  # the first step raised it
+    # one step per try, as before the phase: the cap
+    monkeypatch.setattr(_newton, "STATIONARY_STEPS", 1)
+    single = dataclasses.replace(integ, cg_max_iters=integ.cg_max_iters + 1)  # a new trace
+    _, info1 = C.step(c, state, h, single, guess=data["guess"])
+    assert not bool(info1.converged) and int(info1.newton_iters) == 20

@@ -43,9 +43,10 @@ def newton_log_section(doc: Doc) -> None:
            "iteration's direction comes from the exact Hessian, or, where PCG meets negative curvature, from the "
            "exact Hessian with the inertia term doubled (**shifted**), or, where that is indefinite too, from the "
            "Hessian with every spring block clamped (**clamped**).  Once the relative gradient is below 1e-3 "
-           "after an indefinite exact Hessian, Newton first tries the full step to the exact Hessian's stationary "
-           "point (**stationary**; kept if it lowers the relative gradient, else logged with step 0 and not "
-           "taken).  `project_psd=True` always clamps (the lab's "
+           "after an indefinite exact Hessian, Newton takes full steps to the exact Hessian's stationary point "
+           "(**stationary**), up to six in a phase, kept once one lowers the relative gradient below its value "
+           "where the phase began; a phase that does not returns there (its last iteration logged with step 0 "
+           "and not taken).  `project_psd=True` always clamps (the lab's "
            "choice).  The cap is lifted to 100 Newton iterations here so that each setting's count is its own "
            "(the default cap is 20).")
     settings = {"auto": C.ImplicitEuler(solver="cg", preconditioner="two_level", newton_iters=100, trace=True),

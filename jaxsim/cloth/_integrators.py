@@ -67,9 +67,10 @@ class ImplicitEuler:
         or Cholesky fails), that iteration's direction is recomputed on the exact
         Hessian with the inertia term doubled (``_newton.SHIFT``), and if that is
         still indefinite, with every block projected.  Once the relative gradient is
-        below 1e-3 and the exact Hessian was indefinite, Newton first tries the full step
-        to the exact Hessian's stationary point (PCG through negative curvature), kept if it
-        lowers the relative gradient: near a buckling cloth's saddle the shifted Hessian
+        below 1e-3 and the exact Hessian was indefinite, Newton takes full steps to the
+        exact Hessian's stationary point (PCG through negative curvature), up to six, kept
+        if one lowers the relative gradient (else Newton returns to where they began):
+        near a buckling cloth's saddle the shifted Hessian
         converges only linearly, the exact one quadratically, and a stationary point of
         (17.19) solves backward Euler's equations (``_newton.STATIONARY_REL``).  ``True``: always clamp each
         spring block's negative (compression) eigenvalue at 0 (the lab's choice; on stiff, light cloth it turns

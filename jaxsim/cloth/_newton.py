@@ -2,19 +2,20 @@
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 
 import jax
 import jax.numpy as jnp
 from jax import lax
 
-from .._dataclass import pytree_dataclass
 from . import _contact as ct
 from . import _energy as en
 from . import _problem as pr
 from ._hessian import HessianOps
 from ._integrators import ImplicitEuler
 from ._linsolve import dense_solve, pcg
+from ._newton_state import Iterate, NewtonState
 from ._trace import NewtonTrace
 
 #: Armijo constants of the backtracking line search (lab Algorithm 2).
@@ -29,15 +30,22 @@ BETA, GAMMA = 0.5, 1e-4
 SHIFT = 1.0
 
 #: ``project_psd="auto"``: once the relative gradient is below ``STATIONARY_REL`` and the
-#: exact Hessian was found indefinite, Newton first solves the exact Hessian for the nearby
-#: stationary point of ``g`` (PCG through negative curvature) and takes that full step if the
-#: relative gradient falls below ``STATIONARY_DECREASE`` times its value.  A try that does
-#: not is an iteration not taken, and the next waits until the relative gradient is
-#: ``STATIONARY_RETRY`` times the failed one.  A stationary point solves backward Euler's
-#: equations whether or not it is a minimum of ``g``.  Near a buckling cloth's saddle the
-#: shifted Hessian converges linearly (0.75 per iteration over 27 iterations of one step of
-#: scene C 64x64 k = 1e3), the exact one quadratically (README, stiff cloth).
+#: exact Hessian was found indefinite, Newton solves the exact Hessian for the nearby
+#: stationary point of ``g`` (PCG through negative curvature) and takes the full step: a
+#: stationary point solves backward Euler's equations whether or not it is a minimum of
+#: ``g``.  Near a buckling cloth's saddle the shifted Hessian converges linearly (0.75 per
+#: iteration over 27 iterations of one step of scene C 64x64 k = 1e3), the exact one
+#: quadratically (README, stiff cloth).  The first such step can raise the relative gradient
+#: before the next ones bring it down (the quadratic model of a nearly singular Hessian
+#: holds only close to the stationary point: on a C 32x32 k = 1e5 step 6.6e-9, 2.8e-6,
+#: 5.9e-7, 1.2e-7, 4.9e-9, 8.9e-12), so they run as a phase, a watchdog (Chamberlain et al.
+#: 1982): up to ``STATIONARY_STEPS`` steps, each staying below ``STATIONARY_REL`` and each
+#: after the first cutting the relative gradient by ``STATIONARY_CONTRACT``, until one lowers
+#: it below ``STATIONARY_DECREASE`` times its value where the phase began.  A phase that
+#: does not returns to where it began (its last iteration is not taken), and the next waits
+#: until the relative gradient is ``STATIONARY_RETRY`` times that value.
 STATIONARY_REL, STATIONARY_DECREASE, STATIONARY_RETRY = 1e-3, 1.0, 0.1
+STATIONARY_STEPS, STATIONARY_CONTRACT = 6, 0.5
 
 #: Newton also stops once the gradient test holds and an iteration cut the relative
 #: gradient by less than this factor: the gradient is at the dtype's noise floor, where the
@@ -45,55 +53,6 @@ STATIONARY_REL, STATIONARY_DECREASE, STATIONARY_RETRY = 1e-3, 1.0, 0.1
 #: 1.5e-5 to 2.3e-5 against rtol 1e-4 over the last five iterations of a step, each step
 #: 1.2e-6 to 1.5e-6 m/s against tol 1e-6).
 FLOOR_RATIO = 0.5
-
-
-@pytree_dataclass
-class NewtonState:
-    """The Newton loop's carry.
-
-    Attributes:
-      w: ``(N, 3)`` current deviation ``x - x^n - y`` from the prediction
-        ``y = h v^n + h^2 g`` (m; ``_problem`` module doc); ``-y`` on pinned particles
-        (they do not move).
-      g: ``()`` objective ``g(w)`` (J).
-      grad: ``(N, 3)`` ``grad g(w)`` on free particles, 0 on pinned ones (N).
-      rel: ``()`` relative gradient ``|grad|_inf / scale`` at ``w``.
-      guess: ``(N, 3)`` warm start for the next CG solve (the last step).
-      it: ``()`` int32 iterations taken.
-      cg: ``()`` int32 CG iterations summed.
-      bt: ``()`` int32 line-search halvings summed.
-      alpha: ``()`` last line-search step size.
-      res: ``()`` relative residual of the last linear solve.
-      terms: the spring terms at ``w`` (``_problem.SpringTerms``), which gave ``g``,
-        ``grad`` and ``rel`` and give the next iteration's Hessian blocks.
-      indefinite: ``()`` bool, the last direction did not come from the exact Hessian's
-        minimising solve (it was found indefinite).
-      stationary_below: ``()`` the relative gradient below which a stationary-point step is
-        tried (``STATIONARY_REL``, lowered after a failed try).
-      tight: ``()`` bool, the first PCG solve aims at the gradient test (``newton``'s
-        ``tight_first`` where its start was taken).
-      done: ``()`` bool, the loop has stopped.
-      fail: ``()`` bool, a step produced non-finite values (and was not taken).
-      trace: the per-iteration log with ``ImplicitEuler(trace=True)``, else ``None``.
-    """
-
-    w: jax.Array
-    g: jax.Array
-    grad: jax.Array
-    rel: jax.Array
-    guess: jax.Array
-    it: jax.Array
-    cg: jax.Array
-    bt: jax.Array
-    alpha: jax.Array
-    res: jax.Array
-    terms: pr.SpringTerms
-    indefinite: jax.Array
-    stationary_below: jax.Array
-    tight: jax.Array
-    done: jax.Array
-    fail: jax.Array
-    trace: NewtonTrace | None = None
 
 
 def _safe_ratio(num, den):
@@ -257,10 +216,11 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol, start=None, tight_firs
             tol = jnp.where(s.tight & (s.it == 0), jnp.maximum(integ.cg_tol, jnp.minimum(tol, rtol / s.rel)), tol)
         parts = hessian_parts(s.w, s.terms)
         tried = jnp.array(False)
+        in_phase = s.phase > 0
         if projection == "auto":  # solve for the stationary point once Newton is close to one
-            # (one conditional; a failed try is an iteration not taken.  Falling back to the
-            # minimising direction in a nested conditional deadlocked XLA:CPU under vmap.)
-            tried = s.indefinite & (s.rel < s.stationary_below)
+            # (one conditional.  Falling back to the minimising direction in a nested
+            # conditional deadlocked XLA:CPU under vmap.)
+            tried = in_phase | (s.indefinite & (s.rel < s.stationary_below))
             stationary = lambda: stationary_direction(-s.grad, parts, s.guess, tol) + (jnp.int32(3),)  # noqa: E731
             dx, k_cg, res, which = lax.cond(tried, stationary,
                                             lambda: newton_direction(s.w, -s.grad, parts, s.guess, tol))
@@ -270,9 +230,20 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol, start=None, tight_firs
         step = a * dx  # dx is 0 on pins
         w_new = s.w + step
         rel = pr.relative_gradient(gvec, w_new, p, terms)
-        rejected = tried & ~(rel < STATIONARY_DECREASE * s.rel)  # not taken; the next try waits
-        below = jnp.where(rejected, STATIONARY_RETRY * s.rel, s.stationary_below)
         ok = jnp.all(jnp.isfinite(w_new)) & jnp.isfinite(g_new) & jnp.all(jnp.isfinite(gvec))
+        # a stationary-point phase: on until a step beats the relative gradient where it
+        # began, back there if it stops contracting or runs out of steps
+        old, anchor, phase = s.iterate, s.anchor, jnp.int32(0)
+        rejected = jnp.array(False)
+        if anchor is not None:
+            old = jax.tree_util.tree_map(lambda a_, b_: jnp.where(in_phase, a_, b_), anchor, old)
+            beat = rel < STATIONARY_DECREASE * old.rel
+            go_on = (tried & ~beat & ok & (s.phase + 1 < STATIONARY_STEPS) & (rel < STATIONARY_REL)
+                     & (~in_phase | (rel < STATIONARY_CONTRACT * s.rel)))
+            rejected = tried & ~beat & ~go_on
+            anchor = old  # the phase's start (the current iterate outside a phase)
+            phase = jnp.where(go_on, s.phase + 1, 0)
+        below = jnp.where(rejected, STATIONARY_RETRY * old.rel, s.stationary_below)
         taken = ok & ~rejected
         dmax = jnp.max(jnp.abs(step))
         converged = rel <= rtol
@@ -280,18 +251,18 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol, start=None, tight_firs
             floor = rel > FLOOR_RATIO * s.rel  # no longer improving
             converged = converged & ((dmax / h < integ.tol) | floor)
         stalled = dmax <= 4 * eps * jnp.max(jnp.abs(w_new * free))  # nothing left that the dtype can resolve
-        done = (converged | stalled | (rel <= 4 * eps)) & taken | ~ok
-        keep = lambda new, old: jnp.where(taken, new, old)  # noqa: E731
+        done = (converged | stalled | (rel <= 4 * eps)) & taken & (phase == 0) | ~ok
+        keep = lambda new, prev: jnp.where(taken, new, prev)  # noqa: E731
+        new = jax.tree_util.tree_map(keep, Iterate(w_new, g_new, gvec, rel, terms), old)
         trace = s.trace
-        if trace is not None:  # a failed or rejected step is not taken
-            trace = trace.record(s.it, g=keep(g_new, s.g), rel=keep(rel, s.rel), step=jnp.where(taken, dmax / h, 0.0),
+        if trace is not None:  # a failed step or phase is not taken
+            trace = trace.record(s.it, g=new.g, rel=new.rel, step=jnp.where(taken, dmax / h, 0.0),
                                  alpha=a, backtracks=k_ls, cg=k_cg, hessian=which)
-        return NewtonState(w=keep(w_new, s.w), g=keep(g_new, s.g), grad=keep(gvec, s.grad), rel=keep(rel, s.rel),
-                           guess=jnp.where(taken, step, jnp.where(rejected, s.guess, 0.0)), it=s.it + 1,
-                           cg=s.cg + k_cg, bt=s.bt + k_ls, alpha=a, res=res,
-                           terms=jax.tree_util.tree_map(keep, terms, s.terms),
-                           indefinite=jnp.where(rejected, s.indefinite, which != 0), stationary_below=below, tight=s.tight,
-                           done=done, fail=s.fail | ~ok, trace=trace)
+        return NewtonState(w=new.w, g=new.g, grad=new.grad, rel=new.rel,
+                           guess=jnp.where(taken, step, jnp.where(rejected & ~in_phase, s.guess, 0.0)), it=s.it + 1,
+                           cg=s.cg + k_cg, bt=s.bt + k_ls, alpha=a, res=res, terms=new.terms,
+                           indefinite=jnp.where(rejected, s.indefinite | in_phase, which != 0), stationary_below=below,
+                           phase=phase, tight=s.tight, done=done, fail=s.fail | ~ok, anchor=anchor, trace=trace)
 
     w0 = p.start
     tight = jnp.array(False)
@@ -309,7 +280,14 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol, start=None, tight_firs
     rel0 = pr.relative_gradient(g0, w0, p, t0)
     s0 = NewtonState(w=w0, g=f0, grad=g0, rel=rel0, guess=cg0,
                      it=jnp.int32(0), cg=jnp.int32(0), bt=jnp.int32(0), alpha=z, res=z, terms=t0,
-                     indefinite=jnp.array(False), stationary_below=jnp.asarray(STATIONARY_REL, dtype), tight=tight,
+                     indefinite=jnp.array(False), stationary_below=jnp.asarray(STATIONARY_REL, dtype),
+                     phase=jnp.int32(0), tight=tight,
                      done=(rel0 <= rtol) if integ.tol is None else jnp.array(False), fail=jnp.array(False),
+                     anchor=Iterate(w0, f0, g0, rel0, t0) if projection == "auto" else None,
                      trace=NewtonTrace.empty(integ.newton_iters, dtype) if integ.trace else None)
-    return lax.while_loop(lambda s: (s.it < integ.newton_iters) & ~s.done, body, s0)
+    s = lax.while_loop(lambda s: (s.it < integ.newton_iters) & ~s.done, body, s0)
+    if s.anchor is None:
+        return s
+    # a phase cut off by the cap: where it began is the better iterate
+    back = jax.tree_util.tree_map(lambda a_, b_: jnp.where(s.phase > 0, a_, b_), s.anchor, s.iterate)
+    return dataclasses.replace(s, w=back.w, g=back.g, grad=back.grad, rel=back.rel, terms=back.terms)

@@ -21,9 +21,11 @@ class NewtonTrace:
       g: objective ``g(w)`` after the iteration (J).
       rel: relative gradient after the iteration (``StepInfo.rel_grad``'s measure).
       step: ``max|alpha dx| / h``, the lab's step test (m/s).  An iteration whose step
-        came out non-finite is not taken (``StepInfo.stable`` is then False), nor is a
-        stationary-point step that did not lower the relative gradient: each logs step 0
-        and the previous ``g`` and ``rel``.
+        came out non-finite is not taken (``StepInfo.stable`` is then False), nor is the
+        last step of a stationary-point phase that did not lower the relative gradient
+        (``_newton.STATIONARY_STEPS``): each logs step 0 and the ``g`` and ``rel`` Newton
+        goes on from (where the phase began).  A phase cut off by ``newton_iters`` also
+        returns there; the steps it took stay logged.
       alpha: the line search's step size.
       backtracks: the line search's halvings.
       cg: PCG iterations of the iteration, summed over its tries (0 with Cholesky).
