@@ -4,12 +4,14 @@
 (``ImplicitEuler.extrapolate``).  A rollout from a bare state has none for its first
 step and only the constant-acceleration one for its second, so those two take more
 Newton iterations than the rest, and a short rollout's cost per step includes them.
-This script compiles 10- and 40-step rollouts from the same state (30 steps into the
-motion, default settings, float64 unless marked) and times them in alternation, so that
-both see the same machine load.  Reported: median ms per step of each, the paired ratio
-(40 / 10, median over the pairs), the marginal cost of steps 11-40 ((t40 - t10) / 30,
-median over the pairs: the cost per step of a long simulation), and the Newton and CG
-iterations of those steps against the first two.
+``rollout(..., resume=(states, infos))`` carries the velocities over from the previous
+chunk.  This script compiles 10- and 40-step rollouts from the same state (30 steps into
+the motion, default settings, float64 unless marked) and a 10-step rollout resumed from
+the 10 steps before that state, and times the three in alternation, so that all see the
+same machine load.  Reported: median ms per step of each, the paired ratio (40 / 10,
+median over the pairs), the marginal cost of steps 11-40 ((t40 - t10) / 30, median over
+the pairs: the cost per step of a long simulation), and the Newton and CG iterations of
+the first two steps against the rest, bare and resumed.
 
 Scenes: A lab cloth, B 32x32 (float64 and float32) and B 128x128 (``cloth_step``'s A and B).
 
@@ -40,36 +42,44 @@ SHORT, LONG, WARM = 10, 40, 30
 
 def run(name, c, dt, dtype, reps):
     integ = C.ImplicitEuler(solver="cg")
-    w, _ = C.rollout(c, C.State.at_rest(c), dt, WARM, C.ImplicitEuler(solver="cg", tol=1e-8, cg_tol=1e-10))
-    s0 = C.State(w.x[-1].astype(dtype), w.v[-1].astype(dtype))
     c = jax.tree_util.tree_map(lambda a: a.astype(dtype) if jnp.issubdtype(a.dtype, jnp.floating) else a, c)
+    w, _ = C.rollout(c, C.State.at_rest(c), dt, WARM - SHORT, integ)
+    before = C.rollout(c, C.State(w.x[-1], w.v[-1]), dt, SHORT, integ)  # the chunk before s0
+    s0 = C.State(before[0].x[-1], before[0].v[-1])
     fns, compile_s = {}, {}
-    for n in (SHORT, LONG):
-        fns[n] = jax.jit(lambda s, n=n: C.rollout(c, s, dt, n, integ))
+    for key, n, resume in ((SHORT, SHORT, None), (LONG, LONG, None), ("resumed", SHORT, before)):
+        fns[key] = jax.jit(lambda s, r, n=n: C.rollout(c, s, dt, n, integ, resume=r))
         t0 = time.perf_counter()
-        jax.block_until_ready(fns[n](s0))
-        compile_s[n] = time.perf_counter() - t0
-    times = {SHORT: [], LONG: []}
+        jax.block_until_ready(fns[key](s0, resume))
+        compile_s[key] = time.perf_counter() - t0
+    args = {SHORT: None, LONG: None, "resumed": before}
+    times = {key: [] for key in fns}
     for _ in range(reps):
-        for n in (SHORT, LONG):
+        for key in fns:
             t0 = time.perf_counter()
-            jax.block_until_ready(fns[n](s0))
-            times[n].append(time.perf_counter() - t0)
+            jax.block_until_ready(fns[key](s0, args[key]))
+            times[key].append(time.perf_counter() - t0)
     t10, t40 = np.array(times[SHORT]), np.array(times[LONG])
-    _, info = fns[LONG](s0)
+    _, info = fns[LONG](s0, None)
+    _, info_r = fns["resumed"](s0, before)
+    newton_r = np.asarray(info_r.newton_iters)
     newton, cg = np.asarray(info.newton_iters), np.asarray(info.cg_iters)
     row = {"scene": name, "dtype": np.dtype(dtype).name, "repeats": reps,
            "ms_per_step_10": 1e3 * statistics.median(times[SHORT]) / SHORT,
            "ms_per_step_40": 1e3 * statistics.median(times[LONG]) / LONG,
+           "ms_per_step_10_resumed": 1e3 * statistics.median(times["resumed"]) / SHORT,
            "paired_ratio_40_over_10": float(np.median((t40 / LONG) / (t10 / SHORT))),
+           "paired_ratio_resumed_over_10": float(np.median(np.array(times["resumed"]) / t10)),
            "ms_per_step_after_10": 1e3 * float(np.median((t40 - t10) / (LONG - SHORT))),
            "compile_s_10": compile_s[SHORT], "compile_s_40": compile_s[LONG],
+           "newton_resumed": newton_r.tolist(), "converged_resumed": bool(np.all(np.asarray(info_r.converged))),
            "newton_first_two": newton[:2].tolist(), "cg_first_two": cg[:2].tolist(),
            "newton_per_step_after_2": float(newton[2:].mean()), "cg_per_step_after_2": float(cg[2:].mean()),
            "converged": bool(np.all(np.asarray(info.converged)))}
     print(f"{name:10s} {row['dtype']}: {row['ms_per_step_10']:.3f} ms/step (10 steps), {row['ms_per_step_40']:.3f} (40), "
-          f"steps 11-40 {row['ms_per_step_after_10']:.3f}; Newton first two {row['newton_first_two']}, "
-          f"then {row['newton_per_step_after_2']:.2f}", flush=True)
+          f"steps 11-40 {row['ms_per_step_after_10']:.3f}, 10 resumed {row['ms_per_step_10_resumed']:.3f}; "
+          f"Newton first two {row['newton_first_two']}, then {row['newton_per_step_after_2']:.2f}; resumed "
+          f"{row['newton_resumed']}", flush=True)
     return row
 
 

@@ -10,6 +10,7 @@ import pytest
 
 from jaxsim import cloth as C
 from jaxsim.cloth import _problem as pr
+from jaxsim.cloth._extrapolate import SMOOTH_NEWTON, History
 from jaxsim.cloth._step import _implicit
 
 DT = 1 / 60
@@ -188,3 +189,70 @@ def test_residual_stop_takes_no_iteration_at_equilibrium_and_one_fewer_in_float3
     nr, nt = np.asarray(ir.newton_iters), np.asarray(it.newton_iters)
     assert np.all(nr[1:] <= nt[1:] - 1), (nr, nt)
     np.testing.assert_allclose(np.asarray(xr.x), np.asarray(xt.x), atol=1e-6)
+
+
+AUTO = C.ImplicitEuler(solver="cg")
+
+
+@pytest.fixture(scope="module")
+def chunks(moving):
+    """The moving grid's next 6 steps in one rollout, and as two 3-step rollouts."""
+    c, _, s = moving
+    full = C.rollout(c, s, DT, 6, AUTO)
+    a = C.rollout(c, s, DT, 3, AUTO)
+    return c, full, a, C.State(a[0].x[-1], a[0].v[-1])
+
+
+def test_resumed_rollouts_equal_one_rollout(chunks):
+    """Two 3-step chunks with ``resume`` take the steps of one 6-step rollout: the same
+    Newton iterations and positions.  Without it the second chunk's first two steps take
+    the bare start's extra iterations."""
+    c, (full, i_full), (a, i_a), nxt = chunks
+    b, i_b = C.rollout(c, nxt, DT, 3, AUTO, resume=(a, i_a))
+    _, i_bare = C.rollout(c, nxt, DT, 3, AUTO)
+    np.testing.assert_array_equal(np.concatenate([i_a.newton_iters, i_b.newton_iters]), np.asarray(i_full.newton_iters))
+    np.testing.assert_allclose(np.concatenate([a.x, b.x]), np.asarray(full.x), rtol=0, atol=1e-12)
+    assert bool(jnp.all(i_b.converged))
+    assert int(jnp.sum(i_bare.newton_iters[:2])) > int(jnp.sum(i_b.newton_iters[:2])), (i_bare.newton_iters, i_b.newton_iters)
+    # under jit, with the previous rollout traced
+    jitted, _ = jax.jit(lambda st, r: C.rollout(c, st, DT, 3, AUTO, resume=r))(nxt, (a, i_a))
+    np.testing.assert_allclose(np.asarray(jitted.x), np.asarray(b.x), rtol=0, atol=1e-12)
+
+
+def test_history_after_short_rollouts_extrapolates_what_it_can():
+    """After one step the step before is unknown (the bare start's history); after two the
+    linear start at once and the constant-jerk one a step later (count 1); after three both."""
+    v = jnp.arange(3 * 4 * 3, dtype=jnp.float64).reshape(3, 4, 3) ** 2
+    conv, iters = jnp.array(True), jnp.int32(1)
+    for mode in (1, 2, "auto"):
+        one = History.after(v[:1], conv, iters, mode)
+        first = History.first(v[0], mode)
+        assert jax.tree_util.tree_structure(one) == jax.tree_util.tree_structure(first)
+        for x, y in zip(jax.tree_util.tree_leaves(one), jax.tree_util.tree_leaves(first)):
+            np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+        two, three = History.after(v[:2], conv, iters, mode), History.after(v, conv, iters, mode)
+        np.testing.assert_array_equal(np.asarray(two.v_prev), np.asarray(v[0]))
+        np.testing.assert_array_equal(np.asarray(three.v_prev), np.asarray(v[1]))
+        if mode == 1:
+            assert two.d_prev is None and three.d_prev is None
+            continue
+        assert int(two.count) == 1 and not bool(two.jerk)
+        assert int(three.count) == 2 and bool(three.jerk)
+        np.testing.assert_array_equal(np.asarray(three.d_prev), np.asarray(v[1] - v[0]))
+    # "auto": smooth only after a converged step of at most SMOOTH_NEWTON iterations
+    assert not bool(History.after(v, conv, jnp.int32(SMOOTH_NEWTON + 1), "auto").jerk)
+    assert not bool(History.after(v, jnp.array(False), iters, "auto").jerk)
+
+
+def test_bad_resumes_raise(chunks):
+    c, _, (a, i_a), s = chunks
+    with pytest.raises(TypeError, match="resume"):
+        C.rollout(c, s, DT, 2, AUTO, resume=a)
+    with pytest.raises(TypeError, match="resume"):
+        C.rollout(c, s, DT, 2, AUTO, resume=(i_a, a))
+    with pytest.raises(ValueError, match="shape"):
+        C.rollout(c, s, DT, 2, AUTO, resume=(C.State(a.x[0], a.v[0]), i_a))
+    with pytest.raises(ValueError, match="leading"):
+        C.rollout(c, s, DT, 2, AUTO, resume=(a, jax.tree_util.tree_map(lambda x: x[:2], i_a)))
+    with pytest.raises(ValueError, match="finite"):
+        C.rollout(c, s, DT, 2, AUTO, resume=(C.State(a.x, a.v.at[0, 0, 0].set(jnp.nan)), i_a))

@@ -39,6 +39,22 @@ class History:
             return History(v0)
         return History(v0, jnp.zeros_like(v0), jnp.int32(0), jnp.array(mode == 2))
 
+    @staticmethod
+    def after(v, converged, newton_iters, mode) -> "History":
+        """The history after a rollout whose states had velocities ``v (T, N, 3)`` and whose
+        last step ended with ``converged`` and ``newton_iters`` (``()``), so that the next
+        rollout starts where the same rollout, one step longer, would have.  ``T = 1`` gives
+        :meth:`first` (the step before is unknown); ``T = 2`` the linear extrapolation at
+        once and the constant-jerk one a step later."""
+        T = v.shape[0]
+        if T == 1:
+            return History.first(v[-1], mode)
+        if mode == 1:
+            return History(v[-2])
+        d_prev = v[-2] - v[-3] if T >= 3 else jnp.zeros_like(v[-1])
+        smooth = jnp.array(True) if mode == 2 else converged & (newton_iters <= SMOOTH_NEWTON)
+        return History(v[-2], d_prev, jnp.int32(2 if T >= 3 else 1), smooth)
+
     @property
     def jerk(self) -> jax.Array | bool:
         """``()`` bool, the start includes the constant-jerk term."""
