@@ -261,7 +261,7 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol, start=None, tight_firs
         return NewtonState(w=new.w, g=new.g, grad=new.grad, rel=new.rel,
                            guess=jnp.where(taken, step, jnp.where(rejected & ~in_phase, s.guess, 0.0)), it=s.it + 1,
                            cg=s.cg + k_cg, bt=s.bt + k_ls, alpha=a, res=res, terms=new.terms,
-                           indefinite=jnp.where(rejected, s.indefinite | in_phase, which != 0), stationary_below=below,
+                           indefinite=jnp.where(rejected, s.indefinite, which != 0), stationary_below=below,
                            phase=phase, tight=s.tight, done=done, fail=s.fail | ~ok, anchor=anchor, trace=trace)
 
     w0 = p.start

@@ -249,7 +249,9 @@ def check_path(cloth: Cloth, colliders, n_steps: int):
 
 
 def check_resume(cloth: Cloth, resume):
-    """``(v (T, N, 3), converged (), newton_iters ())`` of a previous rollout's ``(states, infos)``."""
+    """``(v (min(T, 3), N, 3), converged (), newton_iters ())`` of a previous rollout's
+    ``(states, infos)``: the last velocities, all that ``History.after`` reads, so the
+    compiled rollout does not depend on the previous one's length."""
     if resume is None:
         return None
     if not (isinstance(resume, tuple) and len(resume) == 2 and isinstance(resume[0], State)
@@ -265,7 +267,7 @@ def check_resume(cloth: Cloth, resume):
         raise ValueError(f"resume's infos must have a leading ({T},) axis like its states")
     if is_concrete(v):
         check_finite("resume's states.v", v)
-    return v.astype(cloth.dtype), jnp.asarray(infos.converged[-1]), jnp.asarray(infos.newton_iters[-1])
+    return v[-3:].astype(cloth.dtype), jnp.asarray(infos.converged[-1]), jnp.asarray(infos.newton_iters[-1])
 
 
 def rollout(cloth: Cloth, state: State, dt, n_steps: int, integrator=ImplicitEuler(),
