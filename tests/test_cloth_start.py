@@ -256,3 +256,24 @@ def test_bad_resumes_raise(chunks):
         C.rollout(c, s, DT, 2, AUTO, resume=(a, jax.tree_util.tree_map(lambda x: x[:2], i_a)))
     with pytest.raises(ValueError, match="finite"):
         C.rollout(c, s, DT, 2, AUTO, resume=(C.State(a.x, a.v.at[0, 0, 0].set(jnp.nan)), i_a))
+
+
+def test_resumed_batch_rollouts_equal_one_batch_rollout(moving):
+    """``batch_rollout``'s ``resume``: two scenes, 3 + 3 resumed steps take the Newton
+    iterations and positions of one 6-step batch rollout (a bare second chunk does not)."""
+    c, _, s = moving
+    scenes = [c, C.replace(c, stiffness=1.5 * c.stiffness)]
+    full, i_full = C.batch_rollout(scenes, s, DT, 6, AUTO)
+    a, i_a = C.batch_rollout(scenes, s, DT, 3, AUTO)
+    nxt = C.State(a.x[:, -1], a.v[:, -1])
+    b, i_b = C.batch_rollout(scenes, nxt, DT, 3, AUTO, resume=(a, i_a))
+    _, i_bare = C.batch_rollout(scenes, nxt, DT, 3, AUTO)
+    np.testing.assert_array_equal(np.concatenate([i_a.newton_iters, i_b.newton_iters], axis=1),
+                                  np.asarray(i_full.newton_iters))
+    np.testing.assert_allclose(np.concatenate([a.x, b.x], axis=1), np.asarray(full.x), rtol=0, atol=1e-12)
+    assert bool(jnp.all(i_b.converged))
+    assert int(jnp.sum(i_bare.newton_iters[:, :2])) > int(jnp.sum(i_b.newton_iters[:, :2]))
+    with pytest.raises(ValueError, match=r"shape \(2, T, 100, 3\)"):  # one rollout's outputs, not a batch's
+        C.batch_rollout(scenes, nxt, DT, 3, AUTO, resume=C.rollout(c, s, DT, 3, AUTO))
+    with pytest.raises(TypeError, match="batch_rollout's"):
+        C.batch_rollout(scenes, nxt, DT, 3, AUTO, resume=a)

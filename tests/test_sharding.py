@@ -39,6 +39,12 @@ SCRIPT = textwrap.dedent("""
     assert len(xs.x.sharding.device_set) == 4 and xs.x.sharding.shard_shape(xs.x.shape)[0] == 2
     assert np.max(np.abs(np.asarray(xs.x) - np.asarray(ys.x))) <= 1e-6
     assert bool(np.all(np.asarray(infos.converged)))
+    nxt = cloth.State(xs.x[:, -1], xs.v[:, -1])              # a resumed chunk, sharded and not
+    zs, zi = cloth.batch_rollout(scenes, nxt, 1 / 60, 3, resume=(xs, infos))
+    ws, wi = cloth.batch_rollout(scenes, nxt, 1 / 60, 3, resume=(ys, infos), sharded=False)
+    assert len(zs.x.sharding.device_set) == 4
+    assert np.max(np.abs(np.asarray(zs.x) - np.asarray(ws.x))) <= 1e-6
+    assert np.array_equal(np.asarray(zi.newton_iters), np.asarray(wi.newton_iters))
     print("OK")
 """)
 

@@ -17,7 +17,7 @@ from .._validate import check_bool, check_finite, check_int, check_positive, che
 from ._coarse import block_ids
 from ._integrators import ExplicitEuler, ImplicitEuler
 from ._scene import Cloth, State
-from ._step import _rollout, check_inputs
+from ._step import _rollout, check_inputs, check_resume
 
 
 def stack_scenes(scenes: Sequence[Cloth]) -> Cloth:
@@ -61,9 +61,10 @@ def _unchecked(like: Cloth, leaves: dict, stencil=None) -> Cloth:
 
 
 @functools.partial(jax.jit, static_argnames=("n_steps", "integrator", "checkpoint", "state_batched"))
-def _batched(scenes, state, dt, n_steps, integrator, checkpoint, state_batched):
+def _batched(scenes, state, dt, n_steps, integrator, checkpoint, state_batched, resume=None):
     run = functools.partial(_rollout, dt=dt, n_steps=n_steps, integrator=integrator, checkpoint=checkpoint)
-    return jax.vmap(lambda c, s: run(c, s), in_axes=(0, 0 if state_batched else None))(scenes, state)
+    return jax.vmap(lambda c, s, r: run(c, s, resume=r),
+                    in_axes=(0, 0 if state_batched else None, 0))(scenes, state, resume)
 
 
 def check_batched(scenes: Cloth) -> None:
@@ -96,7 +97,7 @@ def check_batched(scenes: Cloth) -> None:
 
 
 def batch_rollout(scenes, state: State, dt, n_steps: int, integrator=ImplicitEuler(), *,
-                  sharded: bool | None = None, checkpoint: bool = False):
+                  sharded: bool | None = None, checkpoint: bool = False, resume=None):
     """``rollout`` for ``B`` parameter sets at once.
 
     Args:
@@ -106,6 +107,9 @@ def batch_rollout(scenes, state: State, dt, n_steps: int, integrator=ImplicitEul
       dt, n_steps, integrator, checkpoint: as for :func:`jaxsim.cloth.rollout`.
       sharded: split the ``B`` scenes across local devices (``None``: when there are
         several; see ``jaxsim._sharding``).
+      resume: the previous ``batch_rollout``'s ``(states, infos)`` (leading ``(B, T)``
+        axes), ``state`` normally its last states: each scene's extrapolated start goes on
+        from its velocities, as ``rollout``'s ``resume`` does.
 
     Returns:
       ``(states, infos)`` with leading ``(B, n_steps)`` axes.
@@ -134,6 +138,7 @@ def batch_rollout(scenes, state: State, dt, n_steps: int, integrator=ImplicitEul
         check_real("dt", dt, minimum=0.0, strict=True)
     n_steps = check_int("n_steps", n_steps, 1)
     checkpoint = check_bool("checkpoint", checkpoint)
+    resume = check_resume(scenes, resume, batch=B)
     mesh = _sharding.batch_mesh(sharded, B)
     pad = 0
     if mesh is not None:
@@ -141,5 +146,8 @@ def batch_rollout(scenes, state: State, dt, n_steps: int, integrator=ImplicitEul
         scenes = _unchecked(scenes, leaves, scenes.stencil)
         if state_batched:
             state, _ = _sharding.shard_leading(state, mesh, B)
-    out = _batched(scenes, state, jnp.asarray(dt, scenes.dtype), n_steps, integrator, bool(checkpoint), state_batched)
+        if resume is not None:
+            resume, _ = _sharding.shard_leading(resume, mesh, B)
+    out = _batched(scenes, state, jnp.asarray(dt, scenes.dtype), n_steps, integrator, bool(checkpoint), state_batched,
+                   resume)
     return _sharding.unpad(out, pad)

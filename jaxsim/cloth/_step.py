@@ -248,26 +248,32 @@ def check_path(cloth: Cloth, colliders, n_steps: int):
     return jax.tree_util.tree_unflatten(want, leaves)
 
 
-def check_resume(cloth: Cloth, resume):
+def check_resume(cloth: Cloth, resume, batch: int | None = None):
     """``(v (min(T, 3), N, 3), converged (), newton_iters ())`` of a previous rollout's
     ``(states, infos)``: the last velocities, all that ``History.after`` reads, so the
-    compiled rollout does not depend on the previous one's length."""
+    compiled rollout does not depend on the previous one's length.  ``batch``: ``B``, a
+    previous ``batch_rollout``'s outputs (every shape with a leading ``(B,)`` axis)."""
     if resume is None:
         return None
     if not (isinstance(resume, tuple) and len(resume) == 2 and isinstance(resume[0], State)
             and isinstance(resume[1], StepInfo)):
-        raise TypeError("resume must be a previous rollout's (states, infos)")
+        raise TypeError(f"resume must be a previous {'batch_' if batch else ''}rollout's (states, infos)")
     states, infos = resume
     v = jnp.asarray(states.v)
-    N = cloth.num_particles
-    if v.ndim != 3 or v.shape[1:] != (N, 3) or v.shape[0] < 1:
-        raise ValueError(f"resume's states must have velocities of shape (T, {N}, 3) (a rollout's), got {v.shape}")
-    T = v.shape[0]
-    if jnp.shape(infos.converged) != (T,) or jnp.shape(infos.newton_iters) != (T,):
-        raise ValueError(f"resume's infos must have a leading ({T},) axis like its states")
+    lead = () if batch is None else (batch,)
+    k = len(lead)
+    N = cloth.rest.shape[-2]
+    if v.ndim != 3 + k or v.shape[:k] != lead or v.shape[k + 1:] != (N, 3) or v.shape[k] < 1:
+        want = ", ".join(map(str, lead + ("T", N, 3)))
+        raise ValueError(f"resume's states must have velocities of shape ({want}) (a "
+                         f"{'batch_' if batch else ''}rollout's), got {v.shape}")
+    T = v.shape[k]
+    if jnp.shape(infos.converged) != lead + (T,) or jnp.shape(infos.newton_iters) != lead + (T,):
+        raise ValueError(f"resume's infos must have a leading {lead + (T,)} axis like its states")
     if is_concrete(v):
         check_finite("resume's states.v", v)
-    return v[-3:].astype(cloth.dtype), jnp.asarray(infos.converged[-1]), jnp.asarray(infos.newton_iters[-1])
+    return (v[..., -3:, :, :].astype(cloth.dtype), jnp.asarray(infos.converged[..., -1]),
+            jnp.asarray(infos.newton_iters[..., -1]))
 
 
 def rollout(cloth: Cloth, state: State, dt, n_steps: int, integrator=ImplicitEuler(),
