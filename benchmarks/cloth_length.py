@@ -1,11 +1,10 @@
 """Per-step cost against rollout length: what a rollout's first steps cost, alternated in one process.
 
 ``rollout`` starts each step from an extrapolation of the velocities before it
-(``ImplicitEuler.extrapolate``).  A rollout from a bare state has none for its first
-step and only the constant-acceleration one for its second, so those two take more
-Newton iterations than the rest, and a short rollout's cost per step includes them.
-``rollout(..., resume=(states, infos))`` carries the velocities over from the previous
-chunk.  This script compiles 10- and 40-step rollouts from the same state (30 steps into
+(``ImplicitEuler.extrapolate``).  A rollout from a bare state takes those of the
+backward-Euler motion that ends at it (from its forces), ``rollout(..., resume=(states,
+infos))`` the previous chunk's.  A short rollout's cost per step also includes the
+call's fixed cost.  This script compiles 10- and 40-step rollouts from the same state (30 steps into
 the motion, default settings, float64 unless marked) and a 10-step rollout resumed from
 the 10 steps before that state, and times the three in alternation, so that all see the
 same machine load.  Reported: median ms per step of each, the paired ratio (40 / 10,

@@ -19,8 +19,8 @@ reason C 64x64 runs the two-level preconditioner only (Jacobi CG on the stiff sc
 measured on C 32x32, at ``cg_tol`` 1e-6), dense one-Newton runs on A only, and explicit
 Euler on A, B 32x32, B 128x128 and C 32x32.  Accuracy is ``max|x - x_ref|`` after one step from the same
 state, ``x_ref`` a converged float64 Newton step (tol 1e-12); Newton and CG iterations
-and ``converged`` are per-step means (all steps) over the timed rollout, whose steps after
-the first start from the extrapolated guess (``ImplicitEuler.extrapolate``; the one-Newton
+and ``converged`` are per-step means (all steps) over the timed rollout, whose steps
+start from the extrapolated guess (``ImplicitEuler.extrapolate``; the one-Newton
 rows are the lab's linearised step from ``x^n``; "linear start", on A and B, is the
 default with ``extrapolate=1``: the constant-acceleration start only, never the
 constant-jerk one).  Converged rows stop on the gradient test alone

@@ -6,6 +6,9 @@ import jax
 import jax.numpy as jnp
 
 from .._dataclass import pytree_dataclass
+from . import _energy as en
+from ._scene import spring_diff, spring_sum
+from ._vec import dot
 
 #: ``ImplicitEuler(extrapolate="auto")``: a step that converged within this many Newton
 #: iterations marks the motion as smooth, and the next step starts from the constant-jerk
@@ -14,51 +17,66 @@ from .._dataclass import pytree_dataclass
 SMOOTH_NEWTON = 2
 
 
+def acceleration(cloth, x, v):
+    """``(N, 3)`` ``a = F(x, v) / m`` (m/s^2; 0 on pins): springs by the radial form
+    (``psi'(s) e``, summed at both ends without a scatter on a grid), gravity, and the
+    along-spring damping ``d ((v_j - v_i) . e) e`` with ``e`` at ``x``.  A backward-Euler
+    step that ends at ``(x, v)`` had ``v - h a`` as its first velocity."""
+    d = spring_diff(cloth, x)
+    e, dpsi, _, _ = en.radial_parts(d, en._length(d) - cloth.rest_length, cloth.stiffness)
+    f = dpsi[:, None] * e
+    if cloth.damped:
+        f = f + (cloth.damping * dot(spring_diff(cloth, v), e))[:, None] * e
+    a = cloth.gravity - spring_sum(cloth, f) / cloth.mass[:, None]
+    return jnp.where(cloth.pinned[:, None], 0.0, a)
+
+
 @pytree_dataclass
 class History:
     """The velocities before a step that ``rollout``'s extrapolated start needs.
 
     Attributes:
-      v_prev: ``(N, 3)`` ``v^{n-1}`` (m/s; ``v^0`` on the first step, which then starts from
-        ``x^0 + h v^0``).
+      v_prev: ``(N, 3)`` ``v^{n-1}`` (m/s).
       d_prev: ``(N, 3)`` ``v^{n-1} - v^{n-2}`` (m/s), or ``None`` (linear extrapolation only).
-      count: ``()`` int32 steps taken (the constant-jerk term needs two), or ``None``.
       smooth: ``()`` bool, use the constant-jerk term (``extrapolate=2``: always;
         ``"auto"``: the last step converged within ``SMOOTH_NEWTON`` iterations), or ``None``.
     """
 
     v_prev: jax.Array
     d_prev: jax.Array | None = None
-    count: jax.Array | None = None
     smooth: jax.Array | None = None
 
     @staticmethod
-    def first(v0, mode) -> "History":
-        """The history before a rollout's first step; ``mode``: ``ImplicitEuler.extrapolate``."""
-        if mode == 1:
-            return History(v0)
-        return History(v0, jnp.zeros_like(v0), jnp.int32(0), jnp.array(mode == 2))
+    def before(cloth, x, v, h, mode, resume=None) -> "History":
+        """The history before a rollout's first step from ``(x, v)`` (``(N, 3)``);
+        ``mode``: ``ImplicitEuler.extrapolate``.
 
-    @staticmethod
-    def after(v, converged, newton_iters, mode) -> "History":
-        """The history after a rollout whose states had velocities ``v (T, N, 3)`` and whose
-        last step ended with ``converged`` and ``newton_iters`` (``()``), so that the next
-        rollout starts where the same rollout, one step longer, would have.  ``T = 1`` gives
-        :meth:`first` (the step before is unknown); ``T = 2`` the linear extrapolation at
-        once and the constant-jerk one a step later."""
-        T = v.shape[0]
-        if T == 1:
-            return History.first(v[-1], mode)
+        ``resume``: ``(v (T, N, 3), converged (), newton_iters ())`` of the previous
+        rollout (its last ``T <= 3`` velocities and its last step's diagnostics), whose
+        velocities are used where known, so that the rollout starts where the same
+        rollout, one step longer, would have.  The velocities not known are those of the
+        backward-Euler motion that ends at ``(x, v)``: ``v^{n-1} = v - h a(x, v)`` and
+        ``v^{n-2} = v^{n-1} - h a(x - h v, v^{n-1})`` (:func:`acceleration`).  So a bare
+        rollout starts its first step from the constant-acceleration extrapolation, and
+        (``"auto"`` takes a bare state's motion as smooth) from the constant-jerk one: on
+        a smoothly moving cloth one Newton iteration from the first step on, as in a long
+        rollout, instead of three and two on the first two steps.  From rest (``a = g``
+        on free particles) it is ``x^0 + h^2 g``."""
+        known = 0 if resume is None else resume[0].shape[0]
+        v_prev = resume[0][-2] if known >= 2 else v - h * acceleration(cloth, x, v)
         if mode == 1:
-            return History(v[-2])
-        d_prev = v[-2] - v[-3] if T >= 3 else jnp.zeros_like(v[-1])
-        smooth = jnp.array(True) if mode == 2 else converged & (newton_iters <= SMOOTH_NEWTON)
-        return History(v[-2], d_prev, jnp.int32(2 if T >= 3 else 1), smooth)
+            return History(v_prev)
+        v_prev2 = resume[0][-3] if known >= 3 else v_prev - h * acceleration(cloth, x - h * v, v_prev)
+        if mode == 2 or resume is None:
+            smooth = jnp.array(True)
+        else:
+            smooth = resume[1] & (resume[2] <= SMOOTH_NEWTON)
+        return History(v_prev, v_prev - v_prev2, smooth)
 
     @property
     def jerk(self) -> jax.Array | bool:
         """``()`` bool, the start includes the constant-jerk term."""
-        return False if self.d_prev is None else (self.count >= 2) & self.smooth
+        return False if self.d_prev is None else self.smooth
 
     def start(self, p) -> jax.Array:
         """``(N, 3)`` the deviation ``w`` of the extrapolated positions
@@ -75,4 +93,4 @@ class History:
         if self.d_prev is None:
             return History(v)
         smooth = self.smooth if mode == 2 else info.converged & (info.newton_iters <= SMOOTH_NEWTON)
-        return History(v, v - self.v_prev, self.count + 1, smooth)
+        return History(v, v - self.v_prev, smooth)

@@ -96,16 +96,20 @@ class ImplicitEuler:
         Newton loop.
       extrapolate: where ``rollout`` starts each step's Newton solve (the lab's start
         ``x^n`` is kept wherever its incremental potential is lower; README, "Extrapolated
-        start").  ``1``: the constant-acceleration extrapolation
-        ``x^n + h (2 v^n - v^{n-1})`` (``x^0 + h v^0`` on the first step); on a smoothly
-        moving cloth one Newton iteration closer to the solution.  ``2``: from the third
-        step on the constant-jerk extrapolation ``x^n + h (3 v^n - 3 v^{n-1} + v^{n-2})``,
+        start").  Before a rollout's first step the velocities ``v^{-1}, v^{-2}`` are those of
+        the backward-Euler motion that ends at the given state (from its forces:
+        ``_extrapolate.History.before``), or the previous rollout's with ``resume``.
+        ``1``: the constant-acceleration extrapolation
+        ``x^n + h (2 v^n - v^{n-1})``; on a smoothly
+        moving cloth one Newton iteration closer to the solution.  ``2``: the
+        constant-jerk extrapolation ``x^n + h (3 v^n - 3 v^{n-1} + v^{n-2})``,
         whose first PCG solve runs to the relative residual ``rtol / rel`` that the
         gradient test needs (at least ``cg_tol``, at most the forcing term's): on a 32x32
         lab-like grid one Newton iteration from it meets float64's gradient test
         (relative gradient 2.6e-10 to 3.2e-10, against 5e-9 to 1.2e-8 from the linear
-        one), but on stiff, buckling cloth it costs iterations.  ``"auto"`` (default, also ``True``): ``2`` after a step that converged
-        within ``_extrapolate.SMOOTH_NEWTON`` iterations, else ``1``.  ``False`` (``0``):
+        one), but on stiff, buckling cloth it costs iterations.  ``"auto"`` (default, also ``True``): ``2`` on a rollout's
+        first step and after a step that converged within ``_extrapolate.SMOOTH_NEWTON``
+        iterations, else ``1``.  ``False`` (``0``):
         the lab's start.  Scenes with colliders always start from ``x^n`` (or its push-out
         off a moving collider).  ``step`` takes the same start as ``guess``.
     """

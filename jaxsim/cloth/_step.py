@@ -220,8 +220,7 @@ def _rollout(cloth, state, dt, n_steps, integrator, checkpoint=False, path=None,
     prev0 = cloth.colliders if path is not None else None
     history = None
     if extrapolate:
-        history = (History.first(state.v, integrator.extrapolate) if resume is None else
-                   History.after(resume[0], resume[1], resume[2], integrator.extrapolate))
+        history = History.before(cloth, state.x, state.v, dt, integrator.extrapolate, resume)
     _, (states, infos) = lax.scan(f, (state, prev0, history), path, length=n_steps)
     return states, infos
 
@@ -250,7 +249,7 @@ def check_path(cloth: Cloth, colliders, n_steps: int):
 
 def check_resume(cloth: Cloth, resume, batch: int | None = None):
     """``(v (min(T, 3), N, 3), converged (), newton_iters ())`` of a previous rollout's
-    ``(states, infos)``: the last velocities, all that ``History.after`` reads, so the
+    ``(states, infos)``: the last velocities, all that ``History.before`` reads, so the
     compiled rollout does not depend on the previous one's length.  ``batch``: ``B``, a
     previous ``batch_rollout``'s outputs (every shape with a leading ``(B,)`` axis)."""
     if resume is None:
@@ -283,10 +282,12 @@ def rollout(cloth: Cloth, state: State, dt, n_steps: int, integrator=ImplicitEul
     Differentiable end to end: implicit steps carry implicit-function derivatives (one
     extra linear solve per step in reverse mode), explicit substeps are differentiated
     through the scan.  Implicit steps start Newton from ``x^n + h (2 v^n - v^{n-1})``
-    (``ImplicitEuler.extrapolate``; ``x^0 + h v^0`` on the first step), or from the
-    constant-jerk extrapolation (``extrapolate=2`` from the third step on, ``"auto"``
-    after a step that converged within two iterations), where that lowers the
-    incremental potential.
+    (``ImplicitEuler.extrapolate``), or from the constant-jerk extrapolation
+    (``extrapolate=2``; ``"auto"`` on the first step and after a step that converged
+    within two iterations), where that lowers the incremental potential.  Before the
+    first step ``v^{-1}`` and ``v^{-2}`` are those of the backward-Euler motion that ends
+    at ``state`` (from its forces), so a smoothly moving cloth takes one Newton iteration
+    from the first step on.
 
     Args:
       checkpoint: rematerialise each step in reverse mode (``jax.checkpoint``), so the
@@ -300,11 +301,12 @@ def rollout(cloth: Cloth, state: State, dt, n_steps: int, integrator=ImplicitEul
       resume: the previous rollout's ``(states, infos)``, ``state`` normally its last state
         (``State(states.x[-1], states.v[-1])``; the start is a guess, taken only where it
         lowers the incremental potential): the extrapolated start goes on from its
-        velocities, so rollouts run in chunks start each step as one long rollout would
-        (from a bare state the first step starts from ``x^0 + h v^0`` and the second from
-        the linear extrapolation; on a 32x32 grid they take 3 and 2 Newton iterations
-        against 1).  Needs three steps for the constant-jerk start at once.  No effect where
-        ``rollout`` does not extrapolate (explicit Euler, ``extrapolate=0``, colliders).
+        velocities and from its last step's diagnostics (``"auto"``), so rollouts run in
+        chunks start each step exactly as one long rollout would.  Without it the
+        velocities before come from the forces at ``state``, which differ from the
+        previous rollout's only through damping's frozen directions (and ``"auto"``
+        takes the motion as smooth).  No effect where ``rollout`` does not extrapolate
+        (explicit Euler, ``extrapolate=0``, colliders).
 
     Returns:
       ``(states, infos)`` stacked over a leading ``(n_steps,)`` axis (``states.x`` is
