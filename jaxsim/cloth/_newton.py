@@ -55,6 +55,11 @@ STATIONARY_STEPS, STATIONARY_CONTRACT = 6, 0.5
 FLOOR_RATIO = 0.5
 
 
+def _where(cond, a, b):
+    """``a`` where ``cond`` else ``b``, leaf by leaf (pytrees of one structure)."""
+    return jax.tree_util.tree_map(lambda x, y: jnp.where(cond, x, y), a, b)
+
+
 def _safe_ratio(num, den):
     r = num / jnp.maximum(den, jnp.finfo(num.dtype).tiny)
     return jnp.where(jnp.isfinite(r), r, jnp.inf)
@@ -236,7 +241,7 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol, start=None, tight_firs
         old, anchor, phase = s.iterate, s.anchor, jnp.int32(0)
         rejected = jnp.array(False)
         if anchor is not None:
-            old = jax.tree_util.tree_map(lambda a_, b_: jnp.where(in_phase, a_, b_), anchor, old)
+            old = _where(in_phase, anchor, old)
             beat = rel < STATIONARY_DECREASE * old.rel
             go_on = (tried & ~beat & ok & (s.phase + 1 < STATIONARY_STEPS) & (rel < STATIONARY_REL)
                      & (~in_phase | (rel < STATIONARY_CONTRACT * s.rel)))
@@ -252,8 +257,7 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol, start=None, tight_firs
             converged = converged & ((dmax / h < integ.tol) | floor)
         stalled = dmax <= 4 * eps * jnp.max(jnp.abs(w_new * free))  # nothing left that the dtype can resolve
         done = (converged | stalled | (rel <= 4 * eps)) & taken & (phase == 0) | ~ok
-        keep = lambda new, prev: jnp.where(taken, new, prev)  # noqa: E731
-        new = jax.tree_util.tree_map(keep, Iterate(w_new, g_new, gvec, rel, terms), old)
+        new = _where(taken, Iterate(w_new, g_new, gvec, rel, terms), old)
         trace = s.trace
         if trace is not None:  # a failed step or phase is not taken
             trace = trace.record(s.it, g=new.g, rel=new.rel, step=jnp.where(taken, dmax / h, 0.0),
@@ -289,5 +293,5 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol, start=None, tight_firs
     if s.anchor is None:
         return s
     # a phase cut off by the cap: where it began is the better iterate
-    back = jax.tree_util.tree_map(lambda a_, b_: jnp.where(s.phase > 0, a_, b_), s.anchor, s.iterate)
+    back = _where(s.phase > 0, s.anchor, s.iterate)
     return dataclasses.replace(s, w=back.w, g=back.g, grad=back.grad, rel=back.rel, terms=back.terms)

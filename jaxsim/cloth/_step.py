@@ -218,9 +218,7 @@ def _rollout(cloth, state, dt, n_steps, integrator, checkpoint=False, path=None,
     if checkpoint:
         f = jax.checkpoint(f, prevent_cse=False)
     prev0 = cloth.colliders if path is not None else None
-    history = None
-    if extrapolate:
-        history = History.before(cloth, state.x, state.v, dt, integrator.extrapolate, resume)
+    history = History.before(cloth, state.x, state.v, dt, integrator.extrapolate, resume) if extrapolate else None
     _, (states, infos) = lax.scan(f, (state, prev0, history), path, length=n_steps)
     return states, infos
 
@@ -254,9 +252,10 @@ def check_resume(cloth: Cloth, resume, batch: int | None = None):
     previous ``batch_rollout``'s outputs (every shape with a leading ``(B,)`` axis)."""
     if resume is None:
         return None
+    what = "batch_rollout" if batch else "rollout"
     if not (isinstance(resume, tuple) and len(resume) == 2 and isinstance(resume[0], State)
             and isinstance(resume[1], StepInfo)):
-        raise TypeError(f"resume must be a previous {'batch_' if batch else ''}rollout's (states, infos)")
+        raise TypeError(f"resume must be a previous {what}'s (states, infos)")
     states, infos = resume
     v = jnp.asarray(states.v)
     lead = () if batch is None else (batch,)
@@ -264,8 +263,7 @@ def check_resume(cloth: Cloth, resume, batch: int | None = None):
     N = cloth.rest.shape[-2]
     if v.ndim != 3 + k or v.shape[:k] != lead or v.shape[k + 1:] != (N, 3) or v.shape[k] < 1:
         want = ", ".join(map(str, lead + ("T", N, 3)))
-        raise ValueError(f"resume's states must have velocities of shape ({want}) (a "
-                         f"{'batch_' if batch else ''}rollout's), got {v.shape}")
+        raise ValueError(f"resume's states must have velocities of shape ({want}) (a {what}'s), got {v.shape}")
     T = v.shape[k]
     if jnp.shape(infos.converged) != lead + (T,) or jnp.shape(infos.newton_iters) != lead + (T,):
         raise ValueError(f"resume's infos must have a leading {lead + (T,)} axis like its states")
