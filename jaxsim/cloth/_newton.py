@@ -214,37 +214,38 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol, start=None, tight_firs
         return dx, a, k, gnew, gvec_new, t_new
 
     def body(s: NewtonState) -> NewtonState:
+        cur = s.iterate
         tol = integ.cg_tol
         if integ.cg_forcing > 0 and integ.newton_iters > 1:  # inexact Newton (Eisenstat & Walker 1996)
-            tol = jnp.maximum(integ.cg_tol, jnp.minimum(integ.cg_forcing, s.rel))
+            tol = jnp.maximum(integ.cg_tol, jnp.minimum(integ.cg_forcing, cur.rel))
             # from a start one iteration away: the residual reduction the gradient test needs
-            tol = jnp.where(s.tight & (s.it == 0), jnp.maximum(integ.cg_tol, jnp.minimum(tol, rtol / s.rel)), tol)
-        parts = hessian_parts(s.w, s.terms)
+            tol = jnp.where(s.tight & (s.it == 0), jnp.maximum(integ.cg_tol, jnp.minimum(tol, rtol / cur.rel)), tol)
+        parts = hessian_parts(cur.w, cur.terms)
         tried = jnp.array(False)
         in_phase = s.phase > 0
         if projection == "auto":  # solve for the stationary point once Newton is close to one
             # (one conditional.  Falling back to the minimising direction in a nested
             # conditional deadlocked XLA:CPU under vmap.)
-            tried = in_phase | (s.indefinite & (s.rel < s.stationary_below))
-            stationary = lambda: stationary_direction(-s.grad, parts, s.guess, tol) + (jnp.int32(3),)  # noqa: E731
+            tried = in_phase | (s.indefinite & (cur.rel < s.stationary_below))
+            stationary = lambda: stationary_direction(-cur.grad, parts, s.guess, tol) + (jnp.int32(3),)  # noqa: E731
             dx, k_cg, res, which = lax.cond(tried, stationary,
-                                            lambda: newton_direction(s.w, -s.grad, parts, s.guess, tol))
+                                            lambda: newton_direction(cur.w, -cur.grad, parts, s.guess, tol))
         else:
-            dx, k_cg, res, which = newton_direction(s.w, -s.grad, parts, s.guess, tol)
-        dx, a, k_ls, g_new, gvec, terms = line_search(s.w, s.g, s.grad, dx, full=tried)
+            dx, k_cg, res, which = newton_direction(cur.w, -cur.grad, parts, s.guess, tol)
+        dx, a, k_ls, g_new, gvec, terms = line_search(cur.w, cur.g, cur.grad, dx, full=tried)
         step = a * dx  # dx is 0 on pins
-        w_new = s.w + step
+        w_new = cur.w + step
         rel = pr.relative_gradient(gvec, w_new, p, terms)
         ok = jnp.all(jnp.isfinite(w_new)) & jnp.isfinite(g_new) & jnp.all(jnp.isfinite(gvec))
         # a stationary-point phase: on until a step beats the relative gradient where it
         # began, back there if it stops contracting or runs out of steps
-        old, anchor, phase = s.iterate, s.anchor, jnp.int32(0)
+        old, anchor, phase = cur, s.anchor, jnp.int32(0)
         rejected = jnp.array(False)
         if anchor is not None:
             old = _where(in_phase, anchor, old)
             beat = rel < STATIONARY_DECREASE * old.rel
             go_on = (tried & ~beat & ok & (s.phase + 1 < STATIONARY_STEPS) & (rel < STATIONARY_REL)
-                     & (~in_phase | (rel < STATIONARY_CONTRACT * s.rel)))
+                     & (~in_phase | (rel < STATIONARY_CONTRACT * cur.rel)))
             rejected = tried & ~beat & ~go_on
             anchor = old  # the phase's start (the current iterate outside a phase)
             phase = jnp.where(go_on, s.phase + 1, 0)
@@ -253,7 +254,7 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol, start=None, tight_firs
         dmax = jnp.max(jnp.abs(step))
         converged = rel <= rtol
         if integ.tol is not None:  # the lab's step test too, unless at the gradient's noise floor
-            floor = rel > FLOOR_RATIO * s.rel  # no longer improving
+            floor = rel > FLOOR_RATIO * cur.rel  # no longer improving
             converged = converged & ((dmax / h < integ.tol) | floor)
         stalled = dmax <= 4 * eps * jnp.max(jnp.abs(w_new * free))  # nothing left that the dtype can resolve
         done = (converged | stalled | (rel <= 4 * eps)) & taken & (phase == 0) | ~ok
@@ -262,9 +263,9 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol, start=None, tight_firs
         if trace is not None:  # a failed step or phase is not taken
             trace = trace.record(s.it, g=new.g, rel=new.rel, step=jnp.where(taken, dmax / h, 0.0),
                                  alpha=a, backtracks=k_ls, cg=k_cg, hessian=which)
-        return NewtonState(w=new.w, g=new.g, grad=new.grad, rel=new.rel,
+        return NewtonState(iterate=new,
                            guess=jnp.where(taken, step, jnp.where(rejected & ~in_phase, s.guess, 0.0)), it=s.it + 1,
-                           cg=s.cg + k_cg, bt=s.bt + k_ls, alpha=a, res=res, terms=new.terms,
+                           cg=s.cg + k_cg, bt=s.bt + k_ls, alpha=a, res=res,
                            indefinite=jnp.where(rejected, s.indefinite, which != 0), stationary_below=below,
                            phase=phase, tight=s.tight, done=done, fail=s.fail | ~ok, anchor=anchor, trace=trace)
 
@@ -282,16 +283,16 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol, start=None, tight_firs
         tight = better & tight_first
     z = jnp.zeros((), dtype)
     rel0 = pr.relative_gradient(g0, w0, p, t0)
-    s0 = NewtonState(w=w0, g=f0, grad=g0, rel=rel0, guess=cg0,
-                     it=jnp.int32(0), cg=jnp.int32(0), bt=jnp.int32(0), alpha=z, res=z, terms=t0,
+    at0 = Iterate(w0, f0, g0, rel0, t0)
+    s0 = NewtonState(iterate=at0, guess=cg0,
+                     it=jnp.int32(0), cg=jnp.int32(0), bt=jnp.int32(0), alpha=z, res=z,
                      indefinite=jnp.array(False), stationary_below=jnp.asarray(STATIONARY_REL, dtype),
                      phase=jnp.int32(0), tight=tight,
                      done=(rel0 <= rtol) if integ.tol is None else jnp.array(False), fail=jnp.array(False),
-                     anchor=Iterate(w0, f0, g0, rel0, t0) if projection == "auto" else None,
+                     anchor=at0 if projection == "auto" else None,
                      trace=NewtonTrace.empty(integ.newton_iters, dtype) if integ.trace else None)
     s = lax.while_loop(lambda s: (s.it < integ.newton_iters) & ~s.done, body, s0)
     if s.anchor is None:
         return s
     # a phase cut off by the cap: where it began is the better iterate
-    back = _where(s.phase > 0, s.anchor, s.iterate)
-    return dataclasses.replace(s, w=back.w, g=back.g, grad=back.grad, rel=back.rel, terms=back.terms)
+    return dataclasses.replace(s, iterate=_where(s.phase > 0, s.anchor, s.iterate))

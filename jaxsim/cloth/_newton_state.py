@@ -11,8 +11,17 @@ from ._trace import NewtonTrace
 
 @pytree_dataclass
 class Iterate:
-    """A Newton iterate with what was evaluated there (``NewtonState``'s fields of the same
-    names): ``w (N, 3)``, ``g ()``, ``grad (N, 3)``, ``rel ()`` and the spring ``terms``."""
+    """A Newton iterate with what was evaluated there.
+
+    Attributes:
+      w: ``(N, 3)`` deviation ``x - x^n - y`` from the prediction ``y = h v^n + h^2 g``
+        (m; ``_problem`` module doc); ``-y`` on pinned particles (they do not move).
+      g: ``()`` objective ``g(w)`` (J).
+      grad: ``(N, 3)`` ``grad g(w)`` on free particles, 0 on pinned ones (N).
+      rel: ``()`` relative gradient ``|grad|_inf / scale`` at ``w``.
+      terms: the spring terms at ``w`` (``_problem.SpringTerms``), which gave ``g``,
+        ``grad`` and ``rel`` and give the next iteration's Hessian blocks.
+    """
 
     w: jax.Array
     g: jax.Array
@@ -26,20 +35,13 @@ class NewtonState:
     """The Newton loop's carry.
 
     Attributes:
-      w: ``(N, 3)`` current deviation ``x - x^n - y`` from the prediction
-        ``y = h v^n + h^2 g`` (m; ``_problem`` module doc); ``-y`` on pinned particles
-        (they do not move).
-      g: ``()`` objective ``g(w)`` (J).
-      grad: ``(N, 3)`` ``grad g(w)`` on free particles, 0 on pinned ones (N).
-      rel: ``()`` relative gradient ``|grad|_inf / scale`` at ``w``.
+      iterate: the current :class:`Iterate`.
       guess: ``(N, 3)`` warm start for the next CG solve (the last step).
       it: ``()`` int32 iterations taken.
       cg: ``()`` int32 CG iterations summed.
       bt: ``()`` int32 line-search halvings summed.
       alpha: ``()`` last line-search step size.
       res: ``()`` relative residual of the last linear solve.
-      terms: the spring terms at ``w`` (``_problem.SpringTerms``), which gave ``g``,
-        ``grad`` and ``rel`` and give the next iteration's Hessian blocks.
       indefinite: ``()`` bool, the last direction did not come from the exact Hessian's
         minimising solve (it was found indefinite).
       stationary_below: ``()`` the relative gradient below which a stationary-point phase
@@ -54,17 +56,13 @@ class NewtonState:
       trace: the per-iteration log with ``ImplicitEuler(trace=True)``, else ``None``.
     """
 
-    w: jax.Array
-    g: jax.Array
-    grad: jax.Array
-    rel: jax.Array
+    iterate: Iterate
     guess: jax.Array
     it: jax.Array
     cg: jax.Array
     bt: jax.Array
     alpha: jax.Array
     res: jax.Array
-    terms: pr.SpringTerms
     indefinite: jax.Array
     stationary_below: jax.Array
     phase: jax.Array
@@ -73,7 +71,3 @@ class NewtonState:
     fail: jax.Array
     anchor: Iterate | None = None
     trace: NewtonTrace | None = None
-
-    @property
-    def iterate(self) -> Iterate:
-        return Iterate(self.w, self.g, self.grad, self.rel, self.terms)

@@ -106,17 +106,18 @@ def _implicit(cloth: Cloth, state: State, dt, integ: ImplicitEuler, prev=None, s
     else:
         start = None
     s = newton(p_const, integ, rtol, start, tight_first=tight)
-    w = solution(integ, s.w, p)
+    end = s.iterate
+    w = solution(integ, end.w, p)
     free = p.free > 0
     u = jnp.where(free, p.displacement(w), 0.0)  # pins do not move
     x, v = x0 + u, jnp.where(free, p.velocity(w), 0.0)
     ok = valid & ~s.fail & bounded(cloth, x, v)
     x, v = jnp.where(ok, x, x0), jnp.where(ok, v, v0)
-    gnorm = jnp.linalg.norm(s.grad)
+    gnorm = jnp.linalg.norm(end.grad)
     info = StepInfo(newton_iters=s.it, cg_iters=s.cg, grad_norm=jnp.where(jnp.isfinite(gnorm), gnorm, jnp.inf),
-                    rel_grad=s.rel, step_size=s.alpha, backtracks=s.bt, residual=s.res,
-                    converged=ok & (s.rel <= rtol), stable=ok, valid=valid,
-                    cond_bound=pr.condition_bound(p_const, s.terms), trace=s.trace)
+                    rel_grad=end.rel, step_size=s.alpha, backtracks=s.bt, residual=s.res,
+                    converged=ok & (end.rel <= rtol), stable=ok, valid=valid,
+                    cond_bound=pr.condition_bound(p_const, end.terms), trace=s.trace)
     return State(x, v), info
 
 
