@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 
 
@@ -31,19 +32,39 @@ def main(argv=None) -> int:
         from ._cli.cache import enable_compilation_cache
 
         before = _out.prepare(args.out, args.command, args.force)  # before any work
-        enable_compilation_cache()
-        from . import retain_host_memory
+        checkpoint = lambda: _out.record(args.out, args.command, before)  # noqa: E731
+        interrupted = []
 
-        retain_host_memory()  # big cloths' scratch memory is not faulted in again every step
-        if args.command == "demo":
-            from ._cli.demo import run
+        def on_sigint(signum, frame):
+            interrupted.append(signum)
+            raise KeyboardInterrupt
 
-            rc = run(out=args.out, fast=args.fast)
-        else:
-            from ._cli.report import run
+        signal.signal(signal.SIGINT, on_sigint)
+        try:
+            enable_compilation_cache()
+            from . import retain_host_memory
 
-            rc = run(out=args.out, quick=args.quick)
-        _out.record(args.out, args.command, before)
+            retain_host_memory()  # big cloths' scratch memory is not faulted in again every step
+            if args.command == "demo":
+                from ._cli.demo import run
+
+                rc = run(out=args.out, fast=args.fast, checkpoint=checkpoint)
+            else:
+                from ._cli.report import run
+
+                rc = run(out=args.out, quick=args.quick)
+        except BaseException:
+            if not interrupted:  # a real error; an interrupt can surface as another error from a cleanup
+                raise
+            checkpoint()
+            print(f"python -m jaxsim {args.command}: interrupted; the files written so far are listed as its own in "
+                  f"{args.out}, so running it again there overwrites them", file=sys.stderr)
+            return 130
+        finally:
+            overwritten = checkpoint()
+            if overwritten:
+                print(f"python -m jaxsim {args.command}: --force: overwrote {len(overwritten)} files it had not "
+                      f"written: {', '.join(overwritten)}", file=sys.stderr)
         return rc
     except CLIError as e:
         print(f"python -m jaxsim {args.command}: error: {e}", file=sys.stderr)

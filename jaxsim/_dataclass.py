@@ -34,3 +34,14 @@ def is_concrete(*leaves: Any) -> bool:
         if not isinstance(x, (np.ndarray, np.generic, jax.Array, list, tuple, float, int)):
             return False
     return True
+
+
+def in_reverse_mode(*trees: Any) -> bool:
+    """True when a leaf of ``trees`` is being linearised (``jax.grad``, ``jax.vjp``,
+    ``jax.linearize``), where a ``lax.while_loop`` cannot be differentiated.  False when
+    it cannot tell (a ``jit`` between the caller's ``grad`` and here hides it)."""
+    try:
+        from jax._src.interpreters.ad import LinearizeTracer
+    except ImportError:  # pragma: no cover - a JAX without the direct-linearize trace
+        return False
+    return any(isinstance(x, LinearizeTracer) for x in jax.tree_util.tree_leaves(trees))

@@ -64,15 +64,7 @@ def pytest_collection_modifyitems(items):
     items.sort(key=lambda it: rank.get(os.path.basename(str(it.fspath)), len(SLOW_FIRST)))
 
 
-#: Tolerances per dtype for quantities of order one.
-TOL = {np.dtype(np.float32): 1e-5, np.dtype(np.float64): 1e-10}
-
 
 @pytest.fixture(params=[np.float32, np.float64], ids=["f32", "f64"])
 def dtype(request):
     return np.dtype(request.param)
-
-
-def random_unit_quaternions(rng, shape):
-    q = rng.normal(size=shape + (4,))
-    return q / np.linalg.norm(q, axis=-1, keepdims=True)

@@ -11,11 +11,7 @@ from jaxsim import cloth as C
 from jaxsim.cloth import _coarse, _problem
 from jaxsim.cloth._hessian import block_jacobi, particle_blocks
 
-
-def stiff_grid(n, k=1e3, dtype=np.float64, pins=None):
-    """Scene C's parameters on an (n+1)^2 grid: total mass 1, g = 9.8."""
-    kw = {} if pins is None else {"pins": pins}
-    return C.grid(n, 0.2, mass=1.0 / (n + 1) ** 2, stiffness=k, gravity=9.8, dtype=dtype, **kw)
+from _helpers import stiff_grid
 
 
 def test_aggregates_partition_the_particles():

@@ -10,7 +10,7 @@ from jax.test_util import check_grads
 
 from jaxsim import cloth as C
 from jaxsim.cloth import _contact
-from test_cloth_stability import all_eqns, step_jaxpr
+from _helpers import all_eqns, step_jaxpr
 
 SPHERE_C = np.array([0.0, 0.5, 0.0])
 

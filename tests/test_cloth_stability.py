@@ -1,4 +1,3 @@
-import functools
 import os
 import sys
 
@@ -8,7 +7,7 @@ import numpy as np
 import pytest
 
 from jaxsim import cloth as C
-from jaxsim.cloth import _step
+from _helpers import all_eqns, step_jaxpr
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "benchmarks"))
 from cloth_stability import DTS, KS, sweep  # noqa: E402
@@ -73,22 +72,6 @@ def test_large_grid_with_cg():
 
 
 # ---- what the compiled step contains ----
-
-def all_eqns(jaxpr):
-    for eqn in jaxpr.eqns:
-        yield eqn
-        for v in eqn.params.values():
-            for j in (v if isinstance(v, (list, tuple)) else [v]):
-                if hasattr(j, "jaxpr") and hasattr(j.jaxpr, "eqns"):
-                    yield from all_eqns(j.jaxpr)
-                elif hasattr(j, "eqns"):
-                    yield from all_eqns(j)
-
-
-def step_jaxpr(cloth, integ):
-    fn = functools.partial(_step._step.__wrapped__, integrator=integ)
-    return jax.make_jaxpr(fn)(cloth, C.State.at_rest(cloth), jnp.asarray(1 / 60, cloth.dtype)).jaxpr
-
 
 def largest_intermediate(jaxpr):
     return max(int(np.prod(v.aval.shape)) for e in all_eqns(jaxpr) for v in e.outvars if hasattr(v.aval, "shape"))

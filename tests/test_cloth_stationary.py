@@ -10,7 +10,7 @@ import numpy as np
 from jaxsim import cloth as C
 from jaxsim.cloth._linsolve import pcg
 
-from test_cloth_coarse import stiff_grid
+from _helpers import stiff_grid
 
 
 def _indefinite_system(n=30, seed=0):

@@ -15,7 +15,7 @@ from jaxsim.cloth._linsolve import block_inverse
 from jaxsim.cloth._scene import spring_diff, spring_sum
 from jaxsim.cloth._stencil import Stencil, detect
 from jaxsim.cloth._vec import matvec
-from test_cloth_stability import all_eqns, step_jaxpr
+from _helpers import all_eqns, step_jaxpr
 
 
 def permuted(c, seed=0):

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from jax.test_util import check_grads
 
-from conftest import TOL, random_unit_quaternions
+from _helpers import TOL, random_unit_quaternions
 from jaxsim import ik
 
 

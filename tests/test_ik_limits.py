@@ -15,12 +15,10 @@ from hypothesis import strategies as st
 from jax.test_util import check_grads
 
 from jaxsim import ik
-from jaxsim._report._humanoid import random_poses
+
+from _helpers import random_rotations, tree
 
 SOLVERS = ("fabrik", "ccd", "lm")
-
-
-random_rotations = random_poses  # unit quaternions, random axis, angle uniform in [0, amp]
 
 
 # ---- a numpy reference for the limit sets (rotation matrices and the shortest arc) ----
@@ -129,13 +127,6 @@ def test_projection_and_violation_against_numpy():
 
 
 # ---- a small tree with every kind of limit ----
-
-def tree(limits=None):
-    """Root, a swing-twist sub-base, a hinge branch ending in a fixed effector, and a
-    swing-twist branch ending in a free effector: 6 joints, effectors 3 and 5."""
-    offsets = np.array([[0, 0, 0], [0, 1.0, 0], [0.5, 0.3, 0], [0.5, 0, 0], [-0.4, 0.3, 0.1], [-0.5, 0, 0]])
-    return ik.Skeleton(parents=(-1, 0, 1, 2, 1, 4), offsets=offsets, limits=limits)
-
 
 @st.composite
 def tree_limits(draw):

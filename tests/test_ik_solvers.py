@@ -6,7 +6,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from jax.test_util import check_grads
 
-from conftest import TOL, random_unit_quaternions
+from _helpers import TOL, random_unit_quaternions
 from jaxsim import curves, ik
 from jaxsim.ik import _fabrik, _joints, _loop
 

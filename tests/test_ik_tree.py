@@ -17,12 +17,10 @@ from jaxsim import ik
 from jaxsim.ik import _horn, _quat
 from jaxsim.ik._skeleton import topology
 from jaxsim.ik._tree_solve import solve_tree
-from jaxsim._report._humanoid import random_poses
+
+from _helpers import random_rotations
 
 SOLVERS = ("fabrik", "ccd")
-
-
-random_rotations = random_poses  # unit quaternions, random axis, angle uniform in [0, amp]
 
 
 def small_tree():

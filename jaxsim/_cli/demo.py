@@ -143,15 +143,16 @@ def _cloth_section(out: str, fast: bool, lines: list[str]) -> None:
               f"{float(rep.energy[0]):.3f} | {float(rep.energy[-1]):.3f} | cloth.gif, cloth.png |", ""]
 
 
-def run(out: str = "jaxsim-demo", fast: bool = False) -> int:
+def run(out: str = "jaxsim-demo", fast: bool = False, checkpoint=None) -> int:
+    """Write the demo into ``out``; ``checkpoint()`` (if given) runs after each section,
+    so the CLI's manifest lists each section's files as soon as they are written."""
     t0 = time.perf_counter()
     os.makedirs(out, exist_ok=True)
     lines = ["# jaxsim demo summary", "", f"Mode: {'fast' if fast else 'full'}.", ""]
-    _ik_section(out, fast, lines)
-    _humanoid_section(out, fast, lines)
-    _limits_section(out, fast, lines)
-    _cloth_section(out, fast, lines)
-    contact_section(out, fast, lines)
+    for section in (_ik_section, _humanoid_section, _limits_section, _cloth_section, contact_section):
+        section(out, fast, lines)
+        if checkpoint is not None:
+            checkpoint()
     lines.append(f"Total wall time: {time.perf_counter() - t0:.1f} s")
     path = os.path.join(out, "summary.md")
     with open(path, "w") as f:

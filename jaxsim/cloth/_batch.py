@@ -3,6 +3,7 @@ split across local devices with ``NamedSharding`` when there are several."""
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from collections.abc import Sequence
 
@@ -15,6 +16,7 @@ from .. import _sharding
 from .._dataclass import is_concrete
 from .._validate import check_bool, check_finite, check_int, check_positive, check_real
 from ._coarse import block_ids
+from ._colliders import collider_kinds, describe_inside, host_distance
 from ._integrators import ExplicitEuler, ImplicitEuler
 from ._scene import Cloth, State
 from ._step import _rollout, check_inputs, check_resume
@@ -23,16 +25,26 @@ from ._step import _rollout, check_inputs, check_resume
 def stack_scenes(scenes: Sequence[Cloth]) -> Cloth:
     """Stack validated scenes of the same layout into one batched ``Cloth``.
 
-    Every array leaf gains a leading ``(B,)`` axis.  The scenes must have the same
-    particle and spring counts and the same static ``damped`` flag.
+    Every array leaf gains a leading ``(B,)`` axis, the colliders' leaves and the
+    contact gap included.  The scenes must have the same particle and spring counts,
+    the same static ``damped`` flag, and the same colliders in kind, order and friction
+    on/off flag (their positions, sizes and coefficients may differ).
     """
     scenes = list(scenes)
     if not scenes or not all(isinstance(s, Cloth) for s in scenes):
         raise TypeError("stack_scenes needs a non-empty sequence of jaxsim.cloth.Cloth")
     first = scenes[0]
-    for s in scenes[1:]:
+    for k, s in enumerate(scenes[1:], start=1):
+        if s.rest.ndim != 2:
+            raise ValueError(f"scenes[{k}] is already batched; stack unbatched scenes")
         if (s.num_particles, s.num_springs, s.damped, s.dtype) != (first.num_particles, first.num_springs, first.damped, first.dtype):
             raise ValueError("scenes differ in particle or spring count, dtype or damped flag; they cannot be batched")
+        if collider_kinds(s.colliders) != collider_kinds(first.colliders):
+            raise ValueError(f"scenes[{k}] has colliders {collider_kinds(s.colliders)}, scenes[0] has "
+                             f"{collider_kinds(first.colliders)}: batched scenes need the same colliders in kind, "
+                             "order and friction on/off (their values may differ)")
+        if (s.contact_stiffness is None) != (first.contact_stiffness is None):
+            raise ValueError("scenes differ in whether contact_stiffness is set; set it on all or none")
     D = max(s.incidence.shape[1] for s in scenes)
     inc = [jnp.pad(s.incidence, ((0, 0), (0, D - s.incidence.shape[1]))) for s in scenes]
     leaves = {f: jnp.stack([getattr(s, f) for s in scenes]) for f in _LEAVES if f not in ("incidence", "aggregates")}
@@ -40,19 +52,34 @@ def stack_scenes(scenes: Sequence[Cloth]) -> Cloth:
     leaves["aggregates"] = jnp.stack([first.aggregates] * len(scenes))
     # the grid operator when every scene has the same grid layout, else the general one
     stencil = first.stencil if all(s.stencil == first.stencil for s in scenes) else None
+    leaves.update(_stack_contact(scenes))
     return _unchecked(first, {**leaves, "incidence": jnp.stack(inc)}, stencil)
+
+
+def _stack_contact(scenes) -> dict:
+    """The contact leaves of ``scenes`` stacked on a leading ``(B,)`` axis."""
+    stack = lambda *xs: jnp.stack(xs)  # noqa: E731
+    out = {"colliders": jax.tree_util.tree_map(stack, *[s.colliders for s in scenes]),
+           "contact_gap": jnp.stack([s.contact_gap for s in scenes]),
+           "contact_stiffness": None}
+    if scenes[0].contact_stiffness is not None:
+        out["contact_stiffness"] = jnp.stack([s.contact_stiffness for s in scenes])
+    return out
 
 
 _LEAVES = ("rest", "springs", "rest_length", "stiffness", "mass", "pinned", "gravity", "damping", "incidence",
            "aggregates")
+#: The leaves that contact adds (a pytree of colliders, the gap, the barrier stiffness or ``None``).
+_CONTACT = ("colliders", "contact_gap", "contact_stiffness")
 
 
 def _unchecked(like: Cloth, leaves: dict, stencil=None) -> Cloth:
     """A ``Cloth`` with ``leaves`` and ``like``'s static flag, skipping the per-scene shape
-    checks (batched leaves carry a leading scene axis)."""
+    checks (batched leaves carry a leading scene axis); contact leaves not in ``leaves``
+    are ``like``'s."""
     out = object.__new__(Cloth)
-    for f in _LEAVES:
-        object.__setattr__(out, f, leaves[f])
+    for f in _LEAVES + _CONTACT:
+        object.__setattr__(out, f, leaves[f] if f in leaves else getattr(like, f))
     object.__setattr__(out, "damped", like.damped)
     object.__setattr__(out, "num_aggregates", like.num_aggregates)
     object.__setattr__(out, "stencil", stencil)
@@ -94,6 +121,47 @@ def check_batched(scenes: Cloth) -> None:
     springs = np.asarray(scenes.springs)
     if springs.size and (springs.min() < 0 or springs.max() >= N):
         raise ValueError(f"batched scene spring ids must lie in [0, {N}), got range [{springs.min()}, {springs.max()}]")
+    check_batched_contact(scenes, B)
+
+
+def check_batched_contact(scenes: Cloth, B: int) -> None:
+    """The contact leaves of a batched scene: a leading ``(B,)`` axis on every one, and
+    every free particle of every scene's rest shape outside its colliders."""
+    if not is_concrete(*jax.tree_util.tree_leaves((scenes.colliders, scenes.contact_gap, scenes.contact_stiffness))):
+        return
+    for k, c in enumerate(scenes.colliders):
+        for f in dataclasses.fields(c):
+            if f.metadata.get("static"):
+                continue
+            a = np.asarray(getattr(c, f.name))
+            if a.ndim < 1 or a.shape[0] != B:
+                raise ValueError(f"batched scene colliders[{k}] ({type(c).__name__}) {f.name} needs a leading ({B},) "
+                                 f"scene axis, got shape {a.shape}; use stack_scenes")
+            check_finite(f"batched scene colliders[{k}] {f.name}", a)
+    for f in ("contact_gap", "contact_stiffness"):
+        a = getattr(scenes, f)
+        if a is None and f == "contact_stiffness":
+            continue
+        if np.shape(a) != (B,):
+            raise ValueError(f"batched scene {f} must have shape ({B},), got {np.shape(a)}; use stack_scenes")
+        check_positive(f"batched scene {f}", check_finite(f"batched scene {f}", a))
+    check_outside(scenes, scenes.rest, "rest positions")
+
+
+def check_outside(scenes: Cloth, x, what: str) -> None:
+    """Raise unless every free particle of ``x (B, N, 3)`` (or ``(N, 3)``, one for every
+    scene) lies outside every scene's colliders (concrete inputs)."""
+    if not scenes.colliders or not is_concrete(x, *jax.tree_util.tree_leaves(scenes.colliders)):
+        return
+    x = np.broadcast_to(np.asarray(x, np.float64), scenes.rest.shape)
+    free = ~np.asarray(scenes.pinned)
+    for k, c in enumerate(scenes.colliders):
+        d = np.stack([host_distance(jax.tree_util.tree_map(lambda a: np.asarray(a)[b], c), x[b])
+                      for b in range(x.shape[0])])
+        bad = (d <= 0) & free
+        if bad.any():
+            b = int(np.flatnonzero(bad.any(axis=1))[0])
+            raise ValueError(f"scene {b}: " + describe_inside([(k, type(c).__name__, int(bad[b].sum()))], what))
 
 
 def batch_rollout(scenes, state: State, dt, n_steps: int, integrator=ImplicitEuler(), *,
@@ -124,6 +192,8 @@ def batch_rollout(scenes, state: State, dt, n_steps: int, integrator=ImplicitEul
             check_inputs(s, state if np.ndim(state.x) == 2 else State(state.x[0], state.v[0]), dt, integrator)
         scenes = stack_scenes(scenes)
     check_batched(scenes)
+    if scenes.colliders and isinstance(integrator, ExplicitEuler):
+        raise ValueError("colliders need ImplicitEuler: contact is a barrier in its incremental potential")
     B, N = scenes.rest.shape[0], scenes.rest.shape[1]
     state_batched = np.ndim(state.x) == 3
     want = (B, N, 3) if state_batched else (N, 3)
@@ -134,6 +204,7 @@ def batch_rollout(scenes, state: State, dt, n_steps: int, integrator=ImplicitEul
         if is_concrete(a):
             check_finite(name, a)
     state = State(jnp.asarray(state.x, scenes.dtype), jnp.asarray(state.v, scenes.dtype))
+    check_outside(scenes, state.x, "state")
     if is_concrete(dt):
         check_real("dt", dt, minimum=0.0, strict=True)
     n_steps = check_int("n_steps", n_steps, 1)
@@ -142,7 +213,7 @@ def batch_rollout(scenes, state: State, dt, n_steps: int, integrator=ImplicitEul
     mesh = _sharding.batch_mesh(sharded, B)
     pad = 0
     if mesh is not None:
-        leaves, pad = _sharding.shard_leading({f: getattr(scenes, f) for f in _LEAVES}, mesh, B)
+        leaves, pad = _sharding.shard_leading({f: getattr(scenes, f) for f in _LEAVES + _CONTACT}, mesh, B)
         scenes = _unchecked(scenes, leaves, scenes.stencil)
         if state_batched:
             state, _ = _sharding.shard_leading(state, mesh, B)

@@ -20,6 +20,9 @@ friction term.
 
 from __future__ import annotations
 
+from decimal import Decimal
+from fractions import Fraction
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -54,10 +57,24 @@ def _sphere_toi(p, dx, r):
     return jnp.where(hit, jnp.maximum(t, 0.0), jnp.inf)
 
 
+def _given(*values) -> bool:
+    """True when the values are a user's (to validate), False when JAX rebuilds the node
+    with tracers or placeholder objects (``register_dataclass`` goes through ``__init__``).
+
+    Strings, ``None``, fractions and decimals count as given, so that they are rejected
+    rather than switching the checks off."""
+    user = (np.ndarray, np.generic, jax.Array, list, tuple, int, float, complex, str, bytes, Fraction, Decimal)
+    return all(v is None or (isinstance(v, user) and not isinstance(v, jax.core.Tracer)) for v in values)
+
+
 def _check(name, value, tail):
-    """``value`` as a finite float array whose trailing shape is ``tail``; leading axes
+    """``value`` as a finite float64 array whose trailing shape is ``tail``; leading axes
     are allowed (a per-step path for ``rollout``)."""
-    a = np.asarray(value, dtype=np.result_type(np.asarray(value).dtype, np.float32))
+    a = np.asarray(value) if not isinstance(value, (str, bytes)) else np.asarray(value, object)
+    if a.dtype == np.bool_ or not (np.issubdtype(a.dtype, np.integer) or np.issubdtype(a.dtype, np.floating)):
+        raise ValueError(f"{name} must be a real number or array of them, got {value!r:.80} "
+                         f"({type(value).__name__}, dtype {a.dtype})")
+    a = a.astype(np.result_type(a.dtype, np.float32))
     if a.ndim < len(tail) or a.shape[a.ndim - len(tail):] != tail:
         raise ValueError(f"{name} must have shape {tail} (or one per step, (T,) + {tail}), got {a.shape}")
     return check_finite(name, a)
@@ -66,6 +83,7 @@ def _check(name, value, tail):
 def _friction(obj):
     mu = _check(f"{type(obj).__name__} friction", obj.friction, ())
     check_positive(f"{type(obj).__name__} friction", mu, strict=False)
+    object.__setattr__(obj, "friction", mu)
     return bool(np.any(mu != 0.0))
 
 
@@ -86,7 +104,7 @@ class Plane:
     frictional: bool = static_field(default=True)
 
     def __post_init__(self):
-        if not is_concrete(self.normal, self.offset, self.friction):
+        if not _given(self.normal, self.offset, self.friction):
             return
         n = _check("Plane normal", self.normal, (3,))
         length = np.linalg.norm(n, axis=-1)
@@ -136,10 +154,10 @@ class Sphere:
     frictional: bool = static_field(default=True)
 
     def __post_init__(self):
-        if not is_concrete(self.center, self.radius, self.friction):
+        if not _given(self.center, self.radius, self.friction):
             return
-        _check("Sphere center", self.center, (3,))
-        check_positive("Sphere radius", _check("Sphere radius", self.radius, ()))
+        object.__setattr__(self, "center", _check("Sphere center", self.center, (3,)))
+        object.__setattr__(self, "radius", check_positive("Sphere radius", _check("Sphere radius", self.radius, ())))
         object.__setattr__(self, "frictional", bool(self.frictional) and _friction(self))
 
     def distance(self, x):
@@ -181,11 +199,11 @@ class Capsule:
     frictional: bool = static_field(default=True)
 
     def __post_init__(self):
-        if not is_concrete(self.a, self.b, self.radius, self.friction):
+        if not _given(self.a, self.b, self.radius, self.friction):
             return
-        _check("Capsule a", self.a, (3,))
-        _check("Capsule b", self.b, (3,))
-        check_positive("Capsule radius", _check("Capsule radius", self.radius, ()))
+        object.__setattr__(self, "a", _check("Capsule a", self.a, (3,)))
+        object.__setattr__(self, "b", _check("Capsule b", self.b, (3,)))
+        object.__setattr__(self, "radius", check_positive("Capsule radius", _check("Capsule radius", self.radius, ())))
         object.__setattr__(self, "frictional", bool(self.frictional) and _friction(self))
 
     def _axis(self):
@@ -254,8 +272,40 @@ def check_colliders(colliders, dtype) -> tuple:
         if not isinstance(c, COLLIDERS):
             raise ValueError(f"colliders[{k}] must be a cloth.Plane, cloth.Sphere or cloth.Capsule, "
                              f"got {type(c).__name__}")
+        if is_concrete(*jax.tree_util.tree_leaves(c)):
+            for f, tail in _SHAPES[type(c)].items():
+                if np.shape(getattr(c, f)) != tail:
+                    raise ValueError(f"colliders[{k}] ({type(c).__name__}) {f} must have shape {tail} in a scene, "
+                                     f"got {np.shape(getattr(c, f))} (a per-step path goes to rollout's colliders=)")
         out.append(jax.tree_util.tree_map(lambda a: jnp.asarray(a, dtype), c))
     return tuple(out)
+
+
+#: Each collider's data fields and their shapes in a scene (a path adds a leading axis).
+_SHAPES = {Plane: {"normal": (3,), "offset": (), "friction": ()},
+           Sphere: {"center": (3,), "radius": (), "friction": ()},
+           Capsule: {"a": (3,), "b": (3,), "radius": (), "friction": ()}}
+
+
+def host_distance(c, x) -> np.ndarray:
+    """``c.distance(x)`` in float64 numpy, for the boundary checks: no cancellation in
+    ``|x - c| - r`` at a float32 scene's precision (a sphere of radius 1e9 m)."""
+    x = np.asarray(x, np.float64)
+    p = {f: np.asarray(getattr(c, f), np.float64) for f in _SHAPES[type(c)]}
+    if isinstance(c, Plane):
+        return x @ p["normal"] - p["offset"]
+    if isinstance(c, Sphere):
+        return np.linalg.norm(x - p["center"], axis=-1) - p["radius"]
+    ab = p["b"] - p["a"]
+    span = np.linalg.norm(ab)
+    w = ab / span if span > 0 else np.zeros(3)
+    t = np.clip((x - p["a"]) @ w, 0.0, span)
+    return np.linalg.norm(x - (p["a"] + t[..., None] * w), axis=-1) - p["radius"]
+
+
+def collider_kinds(colliders) -> tuple:
+    """``((kind, frictional), ...)``: what a batch or a collider path must share."""
+    return tuple((type(c).__name__, c.frictional) for c in colliders)
 
 
 def count_inside(colliders, x, free) -> list[tuple[int, str, int]]:
@@ -263,7 +313,7 @@ def count_inside(colliders, x, free) -> list[tuple[int, str, int]]:
     inside or on its surface (concrete inputs)."""
     out = []
     for k, c in enumerate(colliders):
-        n = int(np.sum((np.asarray(c.distance(jnp.asarray(x))) <= 0) & np.asarray(free)))
+        n = int(np.sum((host_distance(c, x) <= 0) & np.asarray(free)))
         if n:
             out.append((k, type(c).__name__, n))
     return out

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._dtype import check_float_dtype, default_float
-from .._validate import check_finite, check_real, check_shape
+from .._validate import check_finite, check_int, check_real, check_shape
 from ._scene import Cloth, pin_mask
 
 
@@ -120,6 +120,12 @@ def from_mesh(vertices, triangles, *, stiffness: float = 100.0, bending: float |
                          "they would have no mass")
     springs = np.concatenate([edges, bend])
     L = np.linalg.norm(V[springs[:, 1]] - V[springs[:, 0]], axis=-1)
+    folded = np.flatnonzero(L[len(edges):] <= 1e-12 * max(float(np.ptp(V, axis=0).max()), 1e-300))
+    if folded.size:
+        i, j = bend[folded[0]]
+        raise ValueError(f"the mesh folds flat onto itself: {folded.size} pairs of triangles across an edge have "
+                         f"their opposite vertices at one point (first: vertices {i} and {j}), so the bending "
+                         "spring between them would have rest length 0; unfold the rest shape")
     k = np.concatenate([np.full(len(edges), float(stiffness)), np.full(len(bend), float(bending))])
     dtype = default_float() if dtype is None else check_float_dtype("from_mesh", dtype)
     return Cloth(
@@ -133,6 +139,7 @@ def from_mesh(vertices, triangles, *, stiffness: float = 100.0, bending: float |
 def grid_triangles(n: int) -> np.ndarray:
     """``(2 n^2, 3)`` triangles of ``grid(n)``'s particles, each cell split along its
     ``(i, j)``–``(i+1, j+1)`` diagonal (counter-clockwise seen from +y)."""
+    n = check_int("grid_triangles n (cells per side)", n, 1)
     m = n + 1
     i, j = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
     a, b, c, d = i * m + j, (i + 1) * m + j, (i + 1) * m + j + 1, i * m + j + 1
@@ -144,6 +151,11 @@ def grid_triangles(n: int) -> np.ndarray:
 def disk(rings: int = 12, radius: float = 1.0, center=(0.0, 0.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
     """A flat disk in the plane ``y = center[1]``: ``(vertices (N, 3), triangles (F, 3))``,
     ``rings`` concentric rings with ``6 r`` vertices on ring ``r`` (near-equilateral)."""
+    rings = check_int("disk rings", rings, 1)
+    radius = check_real("disk radius", radius, minimum=0.0, strict=True)
+    if np.shape(center) != (3,):
+        raise ValueError(f"disk center must be 3 numbers, got {center!r}")
+    check_finite("disk center", np.asarray(center, float))
     pts = [np.zeros(3)]
     start = [0]
     for r in range(1, rings + 1):

@@ -22,12 +22,15 @@ def read_obj(path) -> tuple[np.ndarray, np.ndarray]:
     Returns:
       ``(vertices (N, 3) float64, triangles (F, 3) int32)``, 0-based.
 
+    The file is read as UTF-8; bytes that are not (a latin-1 comment, say) are replaced,
+    which can only matter inside comments and names, since numbers are ASCII.
+
     Raises:
-      ValueError: a malformed ``v`` or ``f`` line (with its line number), a face id out
-        of range, or a file without faces.
+      ValueError: a malformed ``v`` or ``f`` line (with its line number), a NaN or
+        infinite coordinate, a face id out of range, or a file without faces.
     """
     verts, tris = [], []
-    with open(path, encoding="utf-8") as fh:
+    with open(path, encoding="utf-8", errors="replace") as fh:
         for lineno, line in enumerate(fh, 1):
             parts = line.split("#", 1)[0].split()
             if not parts:
@@ -39,6 +42,9 @@ def read_obj(path) -> tuple[np.ndarray, np.ndarray]:
                     raise ValueError(f"{path}:{lineno}: bad vertex line {line.strip()!r}") from None
                 if len(verts[-1]) != 3:
                     raise ValueError(f"{path}:{lineno}: a vertex needs 3 coordinates")
+                if not all(np.isfinite(verts[-1])):
+                    raise ValueError(f"{path}:{lineno}: vertex {len(verts)} has a NaN or infinite coordinate: "
+                                     f"{line.strip()!r}")
             elif parts[0] == "f":
                 try:
                     ids = [int(t.split("/")[0]) for t in parts[1:]]
@@ -65,6 +71,12 @@ def write_obj(path, x, triangles) -> str:
     T = np.asarray(triangles)
     if x.ndim != 2 or x.shape[1] != 3:
         raise ValueError(f"x must have shape (N, 3), got {x.shape}")
+    if not np.all(np.isfinite(x)):
+        bad = np.flatnonzero(~np.all(np.isfinite(x), axis=1))
+        raise ValueError(f"x has {bad.size} vertices with NaN or infinite coordinates (first id {bad[0]}); "
+                         "an OBJ file cannot hold them")
+    if T.size and (T.dtype == np.bool_ or not np.issubdtype(T.dtype, np.integer)):
+        raise ValueError(f"triangles must hold integer vertex ids, got dtype {T.dtype}")
     if T.ndim != 2 or T.shape[1] != 3 or (T.size and (T.min() < 0 or T.max() >= len(x))):
         raise ValueError(f"triangles must be (F, 3) ids in [0, {len(x)})")
     lines = ["# jaxsim cloth", *(f"v {a:.9g} {b:.9g} {c:.9g}" for a, b, c in x),
@@ -80,6 +92,9 @@ def write_obj_sequence(folder, xs, triangles, stem: str = "frame") -> list[str]:
 
     Returns the paths written.
     """
+    if not isinstance(stem, str) or not stem or os.sep in stem or (os.altsep and os.altsep in stem) or stem in (".", ".."):
+        raise ValueError(f"stem must be a plain file-name prefix without path separators, got {stem!r}; "
+                         "put the folder in folder=")
     xs = np.asarray(xs)
     if xs.ndim != 3 or xs.shape[2] != 3:
         raise ValueError(f"xs must have shape (T, N, 3), got {xs.shape}")

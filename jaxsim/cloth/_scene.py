@@ -278,7 +278,8 @@ def grid_springs(n: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def grid(n: int, spacing: float = 0.2, *, origin=(0.0, 1.5, -1.0), mass: float = 1.0, stiffness: float = 100.0,
-         damping: float = 0.2, gravity: float = 0.3, pins=None, dtype=None, colliders=()) -> Cloth:
+         damping: float = 0.2, gravity: float = 0.3, pins=None, dtype=None, colliders=(),
+         contact_gap=None) -> Cloth:
     """A square cloth of ``(n+1) x (n+1)`` particles in the plane ``y = origin[1]``.
 
     Particle ``(i, j)`` (id ``i*(n+1) + j``) starts at ``origin + (spacing*i, 0, spacing*j)``;
@@ -295,6 +296,7 @@ def grid(n: int, spacing: float = 0.2, *, origin=(0.0, 1.5, -1.0), mass: float =
       pins: pinned particle ids; default the two corners of the first row, ``0`` and ``n``.
       dtype: float dtype (default float32, float64 under ``jax_enable_x64``).
       colliders: ``Plane``/``Sphere``/``Capsule`` tuple (``Cloth.colliders``).
+      contact_gap: the barrier distance ``dhat`` (m); default as for :class:`Cloth`.
     """
     n = check_int("grid n (cells per side)", n, 1)
     spacing = check_real("spacing", spacing, minimum=0.0, strict=True)
@@ -313,7 +315,7 @@ def grid(n: int, spacing: float = 0.2, *, origin=(0.0, 1.5, -1.0), mass: float =
         rest=np.asarray(rest, dtype), springs=springs, rest_length=np.asarray(L, dtype),
         stiffness=np.full(len(springs), stiffness, dtype), mass=np.full(m * m, mass, dtype),
         pinned=pin_mask(m * m, pins), gravity=np.asarray([0.0, -gravity, 0.0], dtype),
-        damping=np.asarray(damping, dtype), colliders=colliders,
+        damping=np.asarray(damping, dtype), colliders=colliders, contact_gap=contact_gap,
     )
 
 

@@ -18,7 +18,7 @@ from ._extrapolate import History
 from ._implicit_diff import solution
 from ._integrators import ExplicitEuler, ImplicitEuler
 from ._newton import newton
-from ._colliders import count_inside, describe_inside
+from ._colliders import COLLIDERS, collider_kinds, count_inside, describe_inside
 from ._scene import Cloth, State
 from ._trace import NewtonTrace
 
@@ -230,6 +230,15 @@ def check_path(cloth: Cloth, colliders, n_steps: int):
         return None
     if not cloth.colliders:
         raise ValueError("a collider path needs a scene with colliders (cloth.replace(scene, colliders=...))")
+    if isinstance(colliders, COLLIDERS):
+        colliders = (colliders,)  # one collider, as the scene accepts it
+    if not isinstance(colliders, (tuple, list)) or not all(isinstance(c, COLLIDERS) for c in colliders):
+        raise ValueError("colliders (the path) must be a tuple of cloth.Plane, cloth.Sphere or cloth.Capsule like "
+                         f"the scene's, with a leading (n_steps,) axis on every leaf; got {colliders!r:.200}")
+    if collider_kinds(colliders) != collider_kinds(cloth.colliders):
+        raise ValueError(f"colliders (the path) are {collider_kinds(colliders)}, the scene's are "
+                         f"{collider_kinds(cloth.colliders)}: a path needs the same kinds, order and friction on/off "
+                         "flags (a path with friction needs a scene collider with friction, and vice versa)")
     want = jax.tree_util.tree_structure(cloth.colliders)
     got = jax.tree_util.tree_structure(tuple(colliders))
     if got != want:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
+from .._dataclass import in_reverse_mode
 from .._validate import check_bool
 from ._chain import Chain
 from ._result import IKResult
@@ -39,6 +40,10 @@ def _dispatch(settings, model, targets, rotations, *, effectors, weights, trace,
     check_settings(model, kind, max_iters, tol)
     for name, flag in (("trace", trace), ("early_exit", early_exit), ("implicit_diff", implicit_diff)):
         check_bool(name, flag)
+    if early_exit and not implicit_diff and in_reverse_mode(model, targets, rotations, orientations, weights):
+        raise ValueError("early_exit=True runs the sweeps in a lax.while_loop, which JAX differentiates in forward "
+                         "mode only (jax.jvp, jax.jacfwd); for jax.grad use early_exit=False (the default scan), or "
+                         "implicit_diff=True, which never differentiates the sweeps")
     tree_kw = dict(trace=trace, early_exit=early_exit, implicit_diff=implicit_diff, orientations=orientations,
                    orientation_weights=orientation_weights)
     if isinstance(model, Chain):

@@ -63,6 +63,8 @@ import math
 
 import numpy as np
 
+from .._dtype import check_float_dtype
+from .._validate import check_bool
 from ._limits import Fixed, Hinge, SwingTwist
 from ._skeleton import Skeleton
 
@@ -122,7 +124,8 @@ def humanoid(dtype=None, limits: bool = True) -> Skeleton:
     rows = _rows()
     offsets = np.array([r[2] for r in rows])
     if dtype is not None:
-        offsets = offsets.astype(dtype)
+        offsets = offsets.astype(check_float_dtype("humanoid", dtype))
+    limits = check_bool("humanoid limits", limits)
     names = tuple(r[0] for r in rows)
     return Skeleton(parents=tuple(r[1] for r in rows), offsets=offsets, names=names,
                     limits=tuple(_limit(n) for n in names) if limits else None)

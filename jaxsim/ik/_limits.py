@@ -291,27 +291,35 @@ def limit_violation(skeleton, rotations) -> jax.Array:
     """Per joint, the angle (rad) by which ``rotations (..., J, 4)`` break the skeleton's limits.
 
     Returns:
-      ``(..., J)``: 0 for a joint within its limit (and for a free joint).
+      ``(..., J)``: 0 for a joint within its limit (and for a free joint); ``inf`` for a
+      rotation with a NaN or inf entry, which is within no limit.
     """
-    rotations = _quat.unit_quaternions(jnp.asarray(rotations, skeleton.offsets.dtype))
+    raw = jnp.asarray(rotations, skeleton.offsets.dtype)
+    bad = ~jnp.all(jnp.isfinite(raw), axis=-1)
+    rotations = _quat.unit_quaternions(raw)
     J = skeleton.num_joints
     if rotations.shape[-2:] != (J, 4):
         raise ValueError(f"rotations must have shape (..., {J}, 4), got {rotations.shape}")
     table = limit_table(skeleton)
     if table is None:
-        return jnp.zeros(rotations.shape[:-1], rotations.dtype)
-    return jnp.stack([violation(_quat.unstack(rotations[..., i, :], axis=-1), *table.joint(i)) for i in range(J)],
-                     axis=-1)
+        v = jnp.zeros(rotations.shape[:-1], rotations.dtype)
+    else:
+        v = jnp.stack([violation(_quat.unstack(rotations[..., i, :], axis=-1), *table.joint(i)) for i in range(J)],
+                      axis=-1)
+    return jnp.where(bad, jnp.inf, v)
 
 
 def project_limits(skeleton, rotations) -> jax.Array:
     """``rotations (..., J, 4)`` moved into the skeleton's limits, joint by joint (normalised first).
 
-    A rotation already within its limit is returned unchanged (up to rounding).
+    A rotation already within its limit is returned unchanged (up to rounding); one with
+    a NaN or inf entry comes back as NaN (it has no nearest rotation in the limit).
     """
-    rotations = _quat.unit_quaternions(jnp.asarray(rotations, skeleton.offsets.dtype))
+    raw = jnp.asarray(rotations, skeleton.offsets.dtype)
+    bad = ~jnp.all(jnp.isfinite(raw), axis=-1, keepdims=True)
+    rotations = _quat.unit_quaternions(raw)
     J = skeleton.num_joints
     if rotations.shape[-2:] != (J, 4):
         raise ValueError(f"rotations must have shape (..., {J}, 4), got {rotations.shape}")
     L = project_all(limit_table(skeleton), [_quat.unstack(rotations[..., i, :], axis=-1) for i in range(J)])
-    return jnp.stack([_quat.stack(q, axis=-1) for q in L], axis=-2)
+    return jnp.where(bad, jnp.nan, jnp.stack([_quat.stack(q, axis=-1) for q in L], axis=-2))

@@ -26,6 +26,9 @@ class _SweepCarry:
       err: the error after the sweeps so far (only with a trace, else ``None``).
       iters: ``int32`` sweeps counted.
       done: ``bool``, met ``tol``.
+      best: ``keep_best`` only (else ``None``): the state of lowest error so far, the
+        start included.
+      best_e2: ``keep_best`` only: its squared error.
     """
 
     state: Any
@@ -34,9 +37,12 @@ class _SweepCarry:
     err: jax.Array | None
     iters: jax.Array
     done: jax.Array
+    best: Any = None
+    best_e2: jax.Array | None = None
 
 
-def masked_sweeps(sweep, state0, err0, iters0, done0, tol, *, max_iters, trace, early_exit, freeze="where"):
+def masked_sweeps(sweep, state0, err0, iters0, done0, tol, *, max_iters, trace, early_exit, freeze="where",
+                  keep_best=False):
     """Run up to ``max_iters`` sweeps.
 
     Args:
@@ -55,11 +61,16 @@ def masked_sweeps(sweep, state0, err0, iters0, done0, tol, *, max_iters, trace, 
         Same states and counts; the sweep's own chain of operations carries no select,
         which lets XLA keep it in fewer, simpler fusions (``benchmarks/ik_throughput.py``).
         The sweep must stay finite on a finished element's later states.
+      keep_best: static; also carry the state of lowest error seen (the start state
+        included) and return it instead of the last one.  For sweeps that are not
+        monotone (FABRIK with limits: the projection onto the limits can undo a
+        sweep's progress), so that a solve never returns a pose worse than its start.
 
     Returns:
-      ``(state, iterations, trace)``; ``trace`` is ``(max_iters, *B)`` or ``None``.
-      An element's counter stops, and its state is frozen, at the first sweep whose
-      error is within ``tol``.
+      ``(state, iterations, trace)``; ``trace`` is ``(max_iters, *B)`` or ``None``
+      (the error after each sweep, so with ``keep_best`` its last entry may exceed the
+      returned state's).  An element's counter stops, and its state is frozen, at the
+      first sweep whose error is within ``tol``.
     """
     B = jnp.shape(done0)
     tol2 = tol * tol
@@ -74,20 +85,28 @@ def masked_sweeps(sweep, state0, err0, iters0, done0, tol, *, max_iters, trace, 
         if trace:  # the error is carried only when a per-sweep trace is asked for
             err = jnp.where(c.done, err, _quat.safe_sqrt(e2))
         hit = ~c.done & (e2 <= tol2)
+        best, best_e2 = c.best, c.best_e2
+        if keep_best:
+            better = ~c.done & (e2 < best_e2)
+            best, best_e2 = _quat.where(better, new, best), jnp.where(better, e2, best_e2)
         c = _SweepCarry(state=new if snapshot else _quat.where(c.done, state, new), snap=snap,
                         pend=hit if snapshot else None, err=err,
-                        iters=c.iters + (~c.done).astype(jnp.int32), done=c.done | hit)
+                        iters=c.iters + (~c.done).astype(jnp.int32), done=c.done | hit, best=best, best_e2=best_e2)
         return c, (err if trace else None)
 
     def finish(c):
         state = c.state
         if snapshot:
             state = _quat.where(c.done, _quat.where(c.pend, state, c.snap), state)
+        if keep_best:
+            state = _quat.where(c.done, state, c.best)
         return state, c.iters
 
     carry0 = _SweepCarry(state=state0, snap=state0 if snapshot else None,
                          pend=jnp.zeros(B, bool) if snapshot else None,
-                         err=jnp.broadcast_to(err0, B) if trace else None, iters=iters0, done=done0)
+                         err=jnp.broadcast_to(err0, B) if trace else None, iters=iters0, done=done0,
+                         best=state0 if keep_best else None,
+                         best_e2=jnp.broadcast_to(err0 * err0, B) if keep_best else None)
     if not early_exit:
         carry, errs = lax.scan(body, carry0, None, length=max_iters)
         return (*finish(carry), errs)

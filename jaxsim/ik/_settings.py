@@ -5,6 +5,8 @@ from __future__ import annotations
 import dataclasses
 from typing import ClassVar
 
+import jax
+
 from .._validate import check_int, check_real, check_tol
 
 #: ``max_iters`` and ``tol`` when neither the call nor a settings object gives them.
@@ -21,7 +23,8 @@ class _Settings:
     def __post_init__(self):
         object.__setattr__(self, "max_iters", check_int("max_iters", self.max_iters, 1))
         check_tol("tol", self.tol)
-        object.__setattr__(self, "tol", float(self.tol))
+        if not isinstance(self.tol, jax.core.Tracer):  # a traced tol (inside jit) stays as it is
+            object.__setattr__(self, "tol", float(self.tol))
 
 
 @dataclasses.dataclass(frozen=True)

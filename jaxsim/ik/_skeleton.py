@@ -23,11 +23,13 @@ from ._limits import check_limits
 
 def _check_parents(parents) -> tuple:
     try:
-        p = tuple(int(i) for i in parents)
-    except (TypeError, ValueError):
+        raw = list(parents)
+    except TypeError:
         raise ValueError(f"parents must be a sequence of ints, got {parents!r}") from None
-    if any(isinstance(i, bool) for i in parents):
-        raise ValueError("parents must be ints, not bools")
+    for i, q in enumerate(raw):
+        if isinstance(q, (bool, np.bool_)) or not isinstance(q, (int, np.integer)):
+            raise ValueError(f"parents must be ints, got parents[{i}] = {q!r} ({type(q).__name__})")
+    p = tuple(int(i) for i in raw)
     if len(p) < 2:
         raise ValueError(f"a Skeleton needs at least 2 joints (one bone), got {len(p)}")
     if p[0] != -1:

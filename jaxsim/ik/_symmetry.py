@@ -104,6 +104,8 @@ def break_symmetry_tree(topo, offsets, local, positions, frames, targets, tol):
 
     local = list(local)
     for k, seg in enumerate(branch_segments(topo)):
+        if len(seg) < 2:  # the root as an effector: no bone to bend
+            continue
         bones = [_quat.sub(positions[seg[j + 1]], positions[seg[j]]) for j in range(len(seg) - 1)]
         # straight_below[i]: the bones from seg[i] down to the effector are all parallel
         straight_below = [None] * len(bones)

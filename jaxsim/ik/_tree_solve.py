@@ -110,7 +110,7 @@ def run_tree(offsets, targets, local0, weights, tol, table=None, orients=None, o
             return G, functools.reduce(jnp.maximum, err)
 
     state, iters, errs = masked_sweeps(sweep, state0, _quat.safe_sqrt(worst0), jnp.zeros(B, jnp.int32), done0, tol,
-                                       max_iters=max_iters, trace=trace, early_exit=early_exit)
+                                       max_iters=max_iters, trace=trace, early_exit=early_exit, keep_best=framed)
     if kind == "fabrik" and framed:
         local = [state[1][i] if i in act else L0[i] for i in range(J)]
     elif kind == "fabrik":
@@ -208,16 +208,16 @@ def solve_tree(settings, skeleton, targets, rotations, *, effectors, weights, tr
         offsets, targets, rotations = (lax.stop_gradient(a) for a in (offsets, targets, rotations))
     topo = topology(skeleton.parents, effectors)
     tol = jnp.asarray(tol, dtype)
-    if kind == "lm":
+    tgt = jnp.moveaxis(targets, (-2, -1), (0, 1))
+    start = bent_start(offsets, tgt, jnp.moveaxis(rotations, (-2, -1), (0, 1)), tol, topo=topo)
+    if kind == "lm":  # LM too starts bent: on its target's line a straight branch has J^T r = 0
         n = int(np.prod(batch, dtype=np.int64))
-        rot = jnp.broadcast_to(rotations, batch + rotations.shape[-2:]).reshape((n,) + rotations.shape[-2:])
+        rot = jnp.moveaxis(start, (0, 1), (-2, -1)).reshape((n,) + rotations.shape[-2:])
         res = run_lm(offsets, targets.reshape((n,) + targets.shape[-2:]), rot, weights, tol, table,
                      None if orients is None else orients.reshape((n,) + orients.shape[-2:]), ow,
                      jnp.asarray(settings.damping, dtype), topo=topo, max_iters=int(max_iters), trace=bool(trace),
                      early_exit=bool(early_exit))
         return jax.tree_util.tree_map(lambda x: x.reshape(batch + x.shape[1:]), res)
-    tgt = jnp.moveaxis(targets, (-2, -1), (0, 1))
-    start = bent_start(offsets, tgt, jnp.moveaxis(rotations, (-2, -1), (0, 1)), tol, topo=topo)
     res = run_tree(offsets, tgt, start, weights, tol, table,
                    None if orients is None else jnp.moveaxis(orients, (-2, -1), (0, 1)), ow, topo=topo, kind=kind,
                    max_iters=int(max_iters), trace=bool(trace), early_exit=bool(early_exit), bend=False)

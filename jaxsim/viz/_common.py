@@ -49,6 +49,9 @@ def check_frames(name: str, a, shape_tail: tuple, *, frames: int | None = None) 
         raise ValueError(f"{name} has no frames")
     if frames is not None and a.shape[0] != frames:
         raise ValueError(f"{name} has {a.shape[0]} frames but the result has {frames}")
+    if not np.all(np.isfinite(a)):
+        bad = np.flatnonzero(~np.all(np.isfinite(a.reshape(len(a), -1)), axis=1))
+        raise ValueError(f"{name} has NaN or infinite values in {bad.size} frames (first: frame {bad[0]})")
     return a
 
 

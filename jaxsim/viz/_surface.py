@@ -30,6 +30,23 @@ def _polys(x, T):
     return x[T][..., [0, 2, 1]]  # draw (x, z, y): world y up on the plot's vertical axis
 
 
+def _check_colliders(colliders) -> tuple:
+    """One static collider or a tuple of them, each with a scene's shapes (no path axis)."""
+    from ..cloth._colliders import _SHAPES, COLLIDERS
+
+    if isinstance(colliders, COLLIDERS):
+        colliders = (colliders,)
+    if not isinstance(colliders, (tuple, list)) or not all(isinstance(c, COLLIDERS) for c in colliders):
+        raise ValueError(f"colliders must be a tuple of cloth.Plane, cloth.Sphere or cloth.Capsule, got {colliders!r:.120}")
+    for k, c in enumerate(colliders):
+        for f, tail in _SHAPES[type(c)].items():
+            if np.shape(getattr(c, f)) != tail:
+                raise ValueError(f"colliders[{k}] ({type(c).__name__}) {f} has shape {np.shape(getattr(c, f))}, "
+                                 f"want {tail}: draw one scene's or one step's colliders "
+                                 "(jax.tree_util.tree_map(lambda a: a[t], colliders))")
+    return tuple(colliders)
+
+
 def _draw_colliders(ax, colliders, center, radius):
     """Spheres and capsules as light wireframes, planes as a translucent square."""
     u, v = np.meshgrid(np.linspace(0, 2 * np.pi, 24), np.linspace(0, np.pi, 12))
@@ -65,7 +82,11 @@ def plot_surface(x, triangles, colliders=(), ax=None, title: str = ""):
     x = np.asarray(x, np.float64)
     if x.ndim != 2 or x.shape[1] != 3:
         raise ValueError(f"x must have shape (N, 3), got {x.shape}")
+    if not np.all(np.isfinite(x)):
+        raise ValueError(f"x has {int(np.sum(~np.all(np.isfinite(x), axis=1)))} particles with NaN or infinite "
+                         "positions; nothing sensible can be drawn")
     T = _check_triangles(triangles, len(x))
+    colliders = _check_colliders(colliders)
     if ax is None:
         fig, ax = new_figure(4.5, 4.5, projection="3d")
     c, r = world_limits(ax, x)
@@ -88,6 +109,7 @@ def animate_surface(xs, triangles, path: str, colliders=(), fps: int = 30, strid
     xs = np.asarray(xs, np.float64)
     xs = check_frames("xs", xs, (xs.shape[-2] if xs.ndim == 3 else -1, 3))
     T = _check_triangles(triangles, xs.shape[1])
+    colliders = _check_colliders(colliders)
     fig, ax = new_figure(4, 4, dpi=dpi, projection="3d")
     ax.view_init(elev=elev, azim=azim)
     c, r = world_limits(ax, xs.reshape(-1, 3))

@@ -1,0 +1,67 @@
+"""Helpers shared by the test modules (no test module imports another)."""
+
+from __future__ import annotations
+
+import functools
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxsim import cloth as C
+from jaxsim import ik
+from jaxsim._report._humanoid import random_poses
+from jaxsim.cloth import _step
+
+#: Tolerances per dtype for quantities of order one.
+TOL = {np.dtype(np.float32): 1e-5, np.dtype(np.float64): 1e-10}
+
+
+def random_unit_quaternions(rng, shape):
+    q = rng.normal(size=shape + (4,))
+    return q / np.linalg.norm(q, axis=-1, keepdims=True)
+
+
+def all_eqns(jaxpr):
+    """Every equation of ``jaxpr``, those of its sub-jaxprs (scan, cond, while) included."""
+    for eqn in jaxpr.eqns:
+        yield eqn
+        for v in eqn.params.values():
+            for j in (v if isinstance(v, (list, tuple)) else [v]):
+                if hasattr(j, "jaxpr") and hasattr(j.jaxpr, "eqns"):
+                    yield from all_eqns(j.jaxpr)
+                elif hasattr(j, "eqns"):
+                    yield from all_eqns(j)
+
+
+def step_jaxpr(cloth, integ):
+    """The jaxpr of one compiled cloth step of ``cloth`` with ``integ``."""
+    fn = functools.partial(_step._step.__wrapped__, integrator=integ)
+    return jax.make_jaxpr(fn)(cloth, C.State.at_rest(cloth), jnp.asarray(1 / 60, cloth.dtype)).jaxpr
+
+
+def stiff_grid(n, k=1e3, dtype=np.float64, pins=None):
+    """Scene C's parameters on an (n+1)^2 grid: total mass 1, g = 9.8."""
+    kw = {} if pins is None else {"pins": pins}
+    return C.grid(n, 0.2, mass=1.0 / (n + 1) ** 2, stiffness=k, gravity=9.8, dtype=dtype, **kw)
+
+#: Unit quaternions, random axis, angle uniform in ``[0, amp]``: ``random_rotations(rng, shape, amp=pi)``.
+random_rotations = random_poses
+
+
+def tree(limits=None):
+    """Root, a swing-twist sub-base, a hinge branch ending in a fixed effector, and a
+    swing-twist branch ending in a free effector: 6 joints, effectors 3 and 5."""
+    offsets = np.array([[0, 0, 0], [0, 1.0, 0], [0.5, 0.3, 0], [0.5, 0, 0], [-0.4, 0.3, 0.1], [-0.5, 0, 0]])
+    return ik.Skeleton(parents=(-1, 0, 1, 2, 1, 4), offsets=offsets, limits=limits)
+
+
+def limited_tree(rng):
+    """:func:`tree` with random limits of every kind drawn from ``rng``."""
+    f = lambda a, b: float(rng.uniform(a, b))  # noqa: E731
+    lo = f(-2, 0.5)
+    hinge = ik.Hinge((f(0.2, 1), f(-1, 1), f(-1, 1)), lo, min(lo + f(0.05, 2.5), math.pi))
+    sw1 = ik.SwingTwist(f(0.05, 1.5), (f(-2, 0), f(0, 2)))
+    sw2 = ik.SwingTwist(f(0.05, 2.5), (f(-1, 0), f(0, 1)), axis=(f(0.2, 1), 0.3, -0.2))
+    return tree((None, sw1, hinge, ik.Fixed(), sw2, None))
