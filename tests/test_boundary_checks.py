@@ -5,7 +5,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxsim import _skeleton, cloth as C, curves, ik, optim, viz
+from jaxsim import cloth as C, curves, ik, optim, viz
+from jaxsim.curves import _image
 
 ARM = ik.lab_arm()
 TARGETS = curves.circle()[:6]
@@ -171,7 +172,7 @@ def test_nearest_start_matches_brute_force():
         near = rest[d == d.min()]
         e = near[deg[near[:, 0], near[:, 1]] == 1]
         want = tuple(int(v) for v in (e if len(e) else near)[0])
-        assert _skeleton._nearest_start(todo, deg, pos) == want
+        assert _image._nearest_start(todo, deg, pos) == want
 
 
 def test_zero_start_rotation_under_jit_is_the_identity():

@@ -5,6 +5,7 @@ import sys
 import pytest
 
 
+@pytest.mark.slow
 def test_demo_fast_writes_summary(tmp_path):
     out = tmp_path / "demo"
     r = subprocess.run([sys.executable, "-m", "jaxsim", "demo", "--fast", "--out", str(out)],

@@ -115,6 +115,7 @@ def stiff_steps():
     return out
 
 
+@pytest.mark.slow
 def test_two_level_step_matches_jacobi_with_fewer_cg_iterations(stiff_steps):
     (sj, ij), (st, it) = stiff_steps["jacobi"], stiff_steps["two_level"]
     assert np.all(np.asarray(ij.converged)) and np.all(np.asarray(it.converged))
@@ -130,6 +131,7 @@ def test_forcing_term_saves_cg_iterations_at_equal_results(stiff_steps):
     assert np.sum(inf_f.newton_iters) <= np.sum(inf_x.newton_iters) + 1
 
 
+@pytest.mark.slow
 def test_scene_c_k1e5_hard_step_converges_within_the_default_cap():
     """Scene C 32x32 at k = 1e5 (float64, two-level CG): its fourth step from rest is one
     where the exact Hessian stays indefinite for dozens of Newton iterations.  Falling back
@@ -143,6 +145,7 @@ def test_scene_c_k1e5_hard_step_converges_within_the_default_cap():
     assert np.all(np.asarray(info.newton_iters) < integ.newton_iters)
 
 
+@pytest.mark.slow
 def test_single_newton_iteration_solves_to_cg_tol():
     c = stiff_grid(5)
     s = C.State.at_rest(c)
@@ -161,6 +164,7 @@ def test_preconditioner_setting_is_checked():
     assert hash(C.ImplicitEuler(preconditioner="two_level")) != hash(C.ImplicitEuler())
 
 
+@pytest.mark.slow
 def test_batched_scenes_carry_aggregates():
     a, b = stiff_grid(5), stiff_grid(5, k=2e3)
     batch = C.stack_scenes([a, b])
@@ -172,6 +176,7 @@ def test_batched_scenes_carry_aggregates():
     np.testing.assert_allclose(states.x[1], alone.x, atol=1e-9)
 
 
+@pytest.mark.slow
 def test_newton_trace_logs_every_iteration_and_changes_nothing():
     """``ImplicitEuler(trace=True)``: the same steps and counts as without it; one entry per
     Newton iteration taken (NaN / -1 after), whose CG iterations and halvings sum to the

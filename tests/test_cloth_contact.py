@@ -119,6 +119,7 @@ def min_distance(c, xs):
     return min(float(np.min(ref_distance(col, xs))) for col in c.colliders)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
 def test_no_penetration_over_stiffness_and_time_step(dtype):
     for k in (1e2, 1e5):
@@ -133,6 +134,7 @@ def test_no_penetration_over_stiffness_and_time_step(dtype):
                 assert top.min() > 0.0 and top.max() < 1.0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
 def test_no_penetration_with_a_sphere_moving_at_5_m_per_s(dtype):
     dt, T = 1 / 120, 500
@@ -155,6 +157,7 @@ def test_no_penetration_with_a_sphere_moving_at_5_m_per_s(dtype):
 @settings(max_examples=4, deadline=None)
 @given(st.floats(0.15, 0.45), st.floats(-0.3, 0.3), st.sampled_from([1 / 240, 1 / 60, 1 / 30]),
        st.sampled_from([1e2, 1e4]))
+@pytest.mark.slow
 def test_property_no_penetration(radius_y, sphere_x, dt, k):
     c = scene(np.float64, k, sphere=(sphere_x, radius_y + 0.05, 0.0))
     states, infos = C.rollout(c, C.State.at_rest(c), dt, 60)
@@ -205,6 +208,7 @@ def test_a_scene_without_colliders_compiles_no_contact_terms():
 
 # ---- derivatives through contact ----
 
+@pytest.mark.slow
 def test_gradients_through_contact_match_finite_differences():
     """The implicit derivative of a step covers the barrier and friction: a cloth resting
     on a sphere, d(final positions)/d(sphere centre) and d/d(stiffness)."""

@@ -132,6 +132,7 @@ def test_radial_blocks_equal_element_hessian():
     assert np.all(np.isfinite(np.asarray(z)))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("scene", ["lab", "undamped", "contact"])
 def test_radial_gradient_and_scale_equal_autodiff_of_the_objective(scene):
     """Newton's gradient (per-spring forces ``psi'(s) e`` + damping, summed at both ends)
@@ -318,6 +319,7 @@ def test_stiff_damped_case_implicit_stable_explicit_flagged():
     assert bool(jnp.all(jnp.isfinite(ex_states.x))) and bool(jnp.all(jnp.isfinite(ex_states.v)))  # no NaN
 
 
+@pytest.mark.slow
 def test_pins_exactly_fixed_and_grad_check(lab):
     states, _ = C.rollout(lab, C.State.at_rest(lab), 1 / 60, 20, C.ImplicitEuler(solver="cg"))
     pinned = np.asarray(lab.pinned)

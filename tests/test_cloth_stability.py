@@ -21,6 +21,7 @@ def check_rows(rows):
         assert r["energy_not_above_initial"], r
 
 
+@pytest.mark.slow
 def test_stability_sweep_lab_cloth():
     """k in {1e2..1e7} x dt in {1/600..1/10}, 200 steps: finite, energy not above the start."""
     rows = sweep(C.lab_cloth(dtype=np.float64), 200, IMPLICIT)
@@ -28,6 +29,7 @@ def test_stability_sweep_lab_cloth():
     check_rows(rows)
 
 
+@pytest.mark.slow
 def test_stability_sweep_24x24_short():
     """The same sweep on a 24x24 grid, 20 steps each (200 steps: benchmarks/cloth_stability.py)."""
     rows = sweep(C.grid(23, 0.2, dtype=np.float64), 20, IMPLICIT)
@@ -48,6 +50,7 @@ def test_stretched_and_crushed_start(factor, dtype):
     assert float(rep.net_change) <= 0
 
 
+@pytest.mark.slow
 def test_all_pinned_no_pins_and_tiny_grid():
     c = C.grid(4, 0.2, pins=np.arange(25), dtype=np.float64)
     s, info = C.step(c, C.State.at_rest(c), 1 / 60, IMPLICIT)

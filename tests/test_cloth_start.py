@@ -84,6 +84,7 @@ def test_rollout_equals_stepping_by_hand_with_the_extrapolated_guess(moving):
         np.testing.assert_allclose(np.asarray(cur.x), np.asarray(states.x[t]), rtol=0, atol=1e-12)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("bad", ["far", "nan"])
 def test_a_worse_guess_keeps_the_labs_start(moving, bad):
     """A guess 1 m off (huge spring energy), or a NaN one under jit, is not taken: the
@@ -131,6 +132,7 @@ def test_bad_guesses_raise(moving):
         C.ImplicitEuler(extrapolate="yes")
 
 
+@pytest.mark.slow
 def test_constant_jerk_start_takes_one_newton_iteration(moving):
     """``extrapolate=2`` with PCG solved to ``cg_tol``: from the first step on, one Newton
     iteration meets float64's gradient test on the swinging grid, where the
@@ -146,6 +148,7 @@ def test_constant_jerk_start_takes_one_newton_iteration(moving):
     np.testing.assert_allclose(np.asarray(x2.x), np.asarray(x1.x), atol=1e-9)
 
 
+@pytest.mark.slow
 def test_constant_jerk_rollout_equals_stepping_by_hand(moving):
     c, _, s = moving
     integ = dataclasses.replace(INTEG, tol=None, cg_forcing=0.0, extrapolate=2)
@@ -160,6 +163,7 @@ def test_constant_jerk_rollout_equals_stepping_by_hand(moving):
         assert int(info.newton_iters) == int(infos.newton_iters[t])
 
 
+@pytest.mark.slow
 def test_auto_takes_the_constant_jerk_start_after_a_smooth_step(moving):
     """The default ``extrapolate="auto"``: the constant-jerk start, with its first PCG solve
     aimed at the gradient test, from a bare state and after a step that converged within
@@ -182,6 +186,7 @@ def test_bad_extrapolation_orders_raise(bad):
         C.ImplicitEuler(extrapolate=bad)
 
 
+@pytest.mark.slow
 def test_residual_stop_takes_no_iteration_at_equilibrium_and_one_fewer_in_float32(moving):
     """``tol=None`` (the default) stops on the gradient test alone: a weightless cloth
     stretched by 1% between pinned borders, at rest, is converged before any iteration,
@@ -279,6 +284,7 @@ def test_bad_resumes_raise(chunks):
         C.rollout(c, s, DT, 2, AUTO, resume=(C.State(a.x, a.v.at[0, 0, 0].set(jnp.nan)), i_a))
 
 
+@pytest.mark.slow
 def test_resumed_batch_rollouts_equal_one_batch_rollout(moving):
     """``batch_rollout``'s ``resume``: two scenes, 3 + 3 resumed steps take the Newton
     iterations and positions of one 6-step batch rollout (a bare second chunk's differ)."""

@@ -1,6 +1,7 @@
 """Newton's stationary-point steps (``_newton.STATIONARY_REL``) and PCG through negative curvature."""
 
 import dataclasses
+import pytest
 import os
 
 import jax
@@ -91,6 +92,7 @@ def test_buckling_steps_of_scene_c_64_converge_at_a_stationary_point():
         assert _backward_euler_residual(c, x0, v0, states.x[s], h) < 1e-8
 
 
+@pytest.mark.slow
 def test_a_stationary_phase_converges_where_its_first_step_raises_the_gradient(monkeypatch):
     """Scene C 32x32 k = 1e5, float64: the step 35 steps from rest (state and extrapolated
     start saved from a rollout, ``tests/data``).  Near its solution the exact Hessian has an

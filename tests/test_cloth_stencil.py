@@ -128,6 +128,7 @@ def test_planes_equal_the_particle_layout(project_psd):
                                    C.ExplicitEuler(substeps=10), C.ImplicitEuler(solver="cg", project_psd=False),
                                    C.ImplicitEuler(solver="cg", preconditioner="two_level")],
                          ids=["cg", "dense", "explicit", "cg-exact", "cg-two-level"])
+@pytest.mark.slow
 def test_steps_with_the_grid_operator_equal_the_general_operator(integ):
     lab = C.lab_cloth(dtype=np.float64)
     gen, _ = permuted(lab)
@@ -139,6 +140,7 @@ def test_steps_with_the_grid_operator_equal_the_general_operator(integ):
     assert bool(jnp.all(ia.converged))
 
 
+@pytest.mark.slow
 def test_gradient_through_the_grid_operator_equals_the_general_one():
     lab = C.lab_cloth(dtype=np.float64)
     gen, perm = permuted(lab)
@@ -172,6 +174,7 @@ def test_stacked_scenes_keep_a_shared_layout():
     assert C.stack_scenes([a, permuted(a)[0]]).stencil is None
 
 
+@pytest.mark.slow
 def test_contact_steps_on_planes_equal_the_general_operator():
     """A grid over a sphere: the contact blocks join PCG's planes."""
     c = C.grid(6, 0.05, origin=(-0.15, 0.12, -0.15), gravity=9.8, pins=[], dtype=np.float64,

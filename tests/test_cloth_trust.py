@@ -24,6 +24,7 @@ def run(dtype, dt, n, stiffness=None, integ=C.ImplicitEuler()):
     return mean_drop(c, states), infos
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("dt", [1 / 60, 1e-3, 1 / 6000])
 def test_float32_moves_like_float64_at_any_dt(dt):
     """0.1 s of the lab cloth from rest: the drop agrees within 2% and every step converged.
@@ -40,6 +41,7 @@ def test_float32_moves_like_float64_at_any_dt(dt):
     assert bool(jnp.all(i32.stable))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("stiffness", [1e11, 1e12])
 def test_float32_stiff_cloth_is_right_or_flagged(stiffness):
     """k = 1e11 and 1e12 at dt = 1/60 for 0.5 s: float32 matches float64 within 2% of
@@ -59,6 +61,7 @@ def test_float32_stiff_cloth_is_right_or_flagged(stiffness):
     assert bool(jnp.all(i32.stable)) and not np.all(np.asarray(i32.newton_iters) == 1)
 
 
+@pytest.mark.slow
 def test_converged_means_small_relative_gradient():
     """`converged` is the gradient test, whatever stopped the loop: one Newton iteration
     on a stiff scene stops on the cap and must not claim convergence."""
@@ -93,6 +96,7 @@ def _stiffness_gradient(dtype, k0):
     return float(g), trusted
 
 
+@pytest.mark.slow
 def test_float32_gradient_at_extreme_stiffness_has_float64_sign_or_is_flagged():
     g64, _ = _stiffness_gradient(np.float64, 1e12)
     g32, trusted32 = _stiffness_gradient(np.float32, 1e12)
@@ -143,6 +147,7 @@ def test_half_precision_is_rejected(half):
         C.replace(c, rest=np.asarray(c.rest).astype(dt))
 
 
+@pytest.mark.slow
 def test_invalid_parameters_under_jit_are_flagged_not_taken():
     """Inside jit nothing can raise: a negative mass, stiffness or dt is reported in
     `StepInfo.valid` and the step is not taken."""
@@ -187,6 +192,7 @@ def test_diagnostics_are_never_nan(case):
     assert np.all(np.isfinite(np.asarray(s.x)))
 
 
+@pytest.mark.slow
 def test_state_is_cast_to_the_scene_dtype():
     c64, c32 = C.lab_cloth(dtype=np.float64), C.lab_cloth(dtype=np.float32)
     x64 = np.asarray(c64.rest)
@@ -215,6 +221,7 @@ def test_stretch_increment_has_no_cancellation():
     assert naive != pytest.approx(want, rel=1e-2)  # the subtraction the step no longer does
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
 def test_stiff_light_cloth_converges_every_step(dtype):
     """Scene C's regime (total mass 1, k = 1e3, g = 9.8, dt = 1/30) on a 16x16 grid: the
@@ -232,6 +239,7 @@ def test_stiff_light_cloth_converges_every_step(dtype):
         assert not bool(jnp.all(clamped.converged)) and int(jnp.max(clamped.newton_iters)) == 20
 
 
+@pytest.mark.slow
 def test_auto_projection_falls_back_on_an_indefinite_hessian():
     """A cloth crushed to 1% of its size: its spring blocks have negative eigenvalues.
     Whether "auto" keeps the exact Hessian or falls back to the projected one, the step
@@ -255,6 +263,7 @@ def test_auto_projection_falls_back_on_an_indefinite_hessian():
     assert float(jnp.min(jnp.linalg.eigvalsh(A))) < 0
 
 
+@pytest.mark.slow
 def test_float32_fast_cloth_converges_like_at_rest():
     """An 8x8 cloth (1 kg particles, k = 1e4, unpinned), stretched by 0.01% and thrown at
     30 m/s: a step moves it 0.5 m while its springs change by a few micrometres.  The

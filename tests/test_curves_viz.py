@@ -6,7 +6,7 @@ import pytest
 from PIL import Image
 
 from jaxsim import curves, ik
-from jaxsim._skeleton import thin, trace_strokes
+from jaxsim.curves import thin, trace_strokes
 
 viz = pytest.importorskip("jaxsim.viz")
 

@@ -12,6 +12,7 @@ from jaxsim import ik
 # ---- IK: implicit-function derivatives against the unrolled ones ----
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("solver", ["ccd", "fabrik"])
 def test_ik_implicit_gradient_equals_unrolled_at_converged_solution(solver):
     arm = ik.lab_arm()
@@ -71,6 +72,7 @@ def small():
     return c, jnp.asarray(x), jnp.asarray(v)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("solver", ["dense", "cg"])
 def test_cloth_step_gradients_check_grads(small, solver):
     c, x, v = small
@@ -88,6 +90,7 @@ def test_cloth_step_gradients_check_grads(small, solver):
     np.testing.assert_array_equal(np.asarray(J[:, 0]), np.eye(3))
 
 
+@pytest.mark.slow
 def test_rollout_gradient_with_and_without_checkpoint(small):
     c, x, v = small
     s0 = C.State(x, v)
@@ -106,6 +109,7 @@ def test_rollout_gradient_with_and_without_checkpoint(small):
     assert mem[1] < mem[0], mem
 
 
+@pytest.mark.slow
 def test_cloth_gradients_finite_at_zero_length_spring_and_fully_pinned():
     # a spring of rest length 0.2 whose two particles start at the same point
     scene = C.Cloth(rest=np.array([[0.0, 0, 0], [0.0, 0, 0], [0.2, 0, 0]]), springs=np.array([[0, 1], [1, 2]]),

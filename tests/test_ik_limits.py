@@ -138,6 +138,7 @@ def tree_limits(draw):
     return (None, sw1, hinge, ik.Fixed(), sw2, None)
 
 
+@pytest.mark.slow
 @given(limits=tree_limits(), seed=st.integers(0, 2**31 - 1))
 @settings(max_examples=6, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 def test_every_pose_within_random_limits(limits, seed):
@@ -159,6 +160,7 @@ def test_every_pose_within_random_limits(limits, seed):
         np.testing.assert_allclose(np.asarray(ik.fk(sk, r.rotations).positions), np.asarray(r.positions), atol=1e-10)
 
 
+@pytest.mark.slow
 def test_limited_solvers_reach_reachable_targets_and_report_unreachable_ones():
     lims = (None, ik.SwingTwist(1.0, (-0.8, 0.8)), ik.Hinge((0, 0, 1), 0.0, 2.5), ik.Fixed(),
             ik.SwingTwist(1.2, (-1.0, 1.0)), None)
@@ -185,6 +187,7 @@ def test_limited_solvers_reach_reachable_targets_and_report_unreachable_ones():
 
 # ---- orientation targets ----
 
+@pytest.mark.slow
 def test_orientation_targets():
     """CCD and LM meet position and orientation; FABRIK meets a free leaf's orientation."""
     sk = tree()
@@ -211,6 +214,7 @@ def test_orientation_targets():
 
 # ---- the LM solver ----
 
+@pytest.mark.slow
 def test_lm_on_a_chain_jit_vmap_and_honest_counts():
     chain = ik.lab_arm()
     rng = np.random.default_rng(5)
@@ -230,6 +234,7 @@ def test_lm_on_a_chain_jit_vmap_and_honest_counts():
     np.testing.assert_array_equal(ee.iterations, eager.iterations)
 
 
+@pytest.mark.slow
 def test_lm_gradients_and_singular_pose():
     chain = ik.Chain(np.array([[0, 0, 0], [1.0, 0, 0], [0.8, 0, 0]]))
     sk = ik.Skeleton.from_chain(chain, limits=(None, ik.Hinge((0, 0, 1), -2.0, 2.0), None))

@@ -152,6 +152,7 @@ def test_track_max_step_angle_bounds_jitter(dtype):
     np.testing.assert_allclose(clamped.positions, ik.fk(arm, clamped.rotations).positions, atol=10 * TOL[dtype])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("solver", ["ccd", "fabrik"])
 def test_jit_matches_eager_and_vmap_matches_loop(solver):
     arm = ik.lab_arm()
@@ -175,6 +176,7 @@ def test_jit_matches_eager_and_vmap_matches_loop(solver):
     np.testing.assert_allclose(vm2, loop2, atol=1e-10)
 
 
+@pytest.mark.slow
 def test_unrolled_equals_rolled():
     chain = ik.straight_chain(np.linspace(0.5, 1.5, 8), direction=(0, -1, 0))
     t = np.array([1.0, -2.0, 2.0])
@@ -216,6 +218,7 @@ def test_snapshot_freeze_equals_where(trace, early_exit):
         np.testing.assert_allclose(tw, ts, rtol=1e-14, atol=0)
 
 
+@pytest.mark.slow
 def test_batched_fabrik_frozen_at_first_sweep_within_tol(dtype):
     """The batched (unrolled, snapshot) FABRIK solve returns, for each target, the pose of
     the sweep that first met ``tol``: the same as one-target solves on the rolled loop."""
@@ -265,6 +268,7 @@ def test_property_lengths_root_and_convergence(lengths, direction, frac, solver)
 
 # ---- gradients ----
 
+@pytest.mark.slow
 @pytest.mark.parametrize("solver", ["ccd", "fabrik"])
 def test_check_grads_end_position(solver):
     arm = ik.lab_arm()
@@ -320,6 +324,7 @@ def results_and_grads(f, offsets, targets, max_iters):
 SINGULAR_RUNS = [(g, np.dtype(np.float64)) for g in singular_groups()] + [("five_joints", np.dtype(np.float32))]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("group, dtype", SINGULAR_RUNS, ids=[f"{g}-{d.name}" for g, d in SINGULAR_RUNS])
 @pytest.mark.parametrize("solver", ["ccd", "fabrik"])
 def test_singular_cases_no_nan(group, solver, dtype):

@@ -174,6 +174,7 @@ def humanoid_batch():
 RATES = {"fabrik": 0.95, "ccd": 0.5}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", SOLVERS)
 def test_humanoid(kind):
     H, eff, targets = humanoid_batch()
@@ -206,6 +207,7 @@ def test_humanoid(kind):
     assert float(r.error[503, 2]) <= 1e-4, np.asarray(r.error[503])
 
 
+@pytest.mark.slow
 @given(data=st.data())
 @settings(max_examples=5, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 def test_random_tree_properties(data):
@@ -244,6 +246,7 @@ def test_random_tree_properties(data):
 
 # ---- transformations ----
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", SOLVERS)
 def test_tree_jit_equals_eager_and_vmap_equals_loop(kind):
     sk = small_tree()
@@ -259,6 +262,7 @@ def test_tree_jit_equals_eager_and_vmap_equals_loop(kind):
         np.testing.assert_allclose(getattr(vm, field), np.stack([getattr(x, field) for x in loop]), atol=1e-12)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", SOLVERS)
 def test_tree_gradients(kind):
     """Effector positions w.r.t. the targets and the offsets, through the sweeps."""
@@ -274,6 +278,7 @@ def test_tree_gradients(kind):
     check_grads(effs, (jnp.asarray(t), sk.offsets), order=1, modes=("rev",), atol=1e-5, rtol=1e-5)
 
 
+@pytest.mark.slow
 def test_tree_implicit_diff():
     sk = small_tree()
     rng = np.random.default_rng(7)
@@ -288,6 +293,7 @@ def test_tree_implicit_diff():
     np.testing.assert_allclose(Jm.reshape(6, 6), np.eye(6), atol=1e-6)  # reached targets follow their targets
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", SOLVERS)
 def test_no_nan_on_sub_base_and_straight_branch(kind):
     sk = small_tree()

@@ -32,6 +32,7 @@ def _sphere_drop(k, radius=0.25, friction=0.3):
                       colliders=(cloth.Sphere(np.array([0, 0.3, 0.0]), radius, friction=friction),))
 
 
+@pytest.mark.slow
 def test_batch_rollout_keeps_colliders_and_equals_per_scene_rollouts():
     scenes = [_sphere_drop(30.0), _sphere_drop(60.0, radius=0.22)]
     s0 = cloth.State.at_rest(scenes[0])
@@ -90,6 +91,7 @@ def lm_chain():
     return ik.straight_chain([1.0, 1.0])
 
 
+@pytest.mark.slow
 def test_lm_gradient_matches_finite_differences_at_a_straight_chain(lm_chain):
     """Beyond reach on the chain's own line LM used to return an exactly zero gradient.
 
@@ -113,6 +115,7 @@ def test_lm_bends_a_collinear_chain(lm_chain):
         assert bool(r.converged) and float(r.error) <= 1e-4, solver
 
 
+@pytest.mark.slow
 def test_fabrik_with_limits_never_returns_a_pose_worse_than_its_start():
     """Projected onto the limits, FABRIK's sweeps can undo their progress: the result is
     the best pose visited, never one worse than the start."""
@@ -142,6 +145,7 @@ def test_colliders_take_array_likes_and_store_arrays():
     np.testing.assert_allclose(np.asarray(sc.colliders[0].center), [0, 0.5, 0])
 
 
+@pytest.mark.slow
 def test_root_joint_as_an_effector():
     sk = limited_tree(np.random.default_rng(1))
     H = ik.humanoid()
@@ -194,6 +198,7 @@ def test_obj_with_latin1_comment(tmp_path):
     assert V.shape == (3, 3) and T.tolist() == [[0, 1, 2]]
 
 
+@pytest.mark.slow
 def test_grad_with_early_exit_names_it():
     ch = ik.straight_chain([1.0, 1.0])
     f = lambda t: ik.solve(ch, t, early_exit=True).positions.sum()  # noqa: E731

@@ -15,6 +15,7 @@ def test_notebooks_exist():
     assert {"01_inverse_kinematics.ipynb", "02_cloth.ipynb", "03_differentiable.ipynb"} <= set(names)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.stem for p in NOTEBOOKS])
 def test_notebook_runs(path, monkeypatch, tmp_path):
     monkeypatch.setenv("JAXSIM_NOTEBOOK_FAST", "1")

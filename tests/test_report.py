@@ -1,6 +1,7 @@
 """``python -m jaxsim report --quick`` into a temporary folder: tables, figures, key inequalities."""
 
 import re
+import pytest
 import subprocess
 import sys
 
@@ -11,6 +12,7 @@ FIGURES = ["ik_humanoid.png", "ik_error_vs_iterations.png", "ik_error_vs_time.pn
 SECTIONS = ["IK 1.", "IK 2.", "IK 3.", "IK 4.", "IK 5.", "Cloth 1.", "Cloth 2.", "Cloth 3.", "Cloth 4.", "Cloth 6."]
 
 
+@pytest.mark.slow
 def test_quick_report(tmp_path):
     """One test (one report run, whichever worker gets it): writes, then checks everything."""
     out = tmp_path / "report"

@@ -49,12 +49,14 @@ SCRIPT = textwrap.dedent("""
 """)
 
 
+@pytest.mark.slow
 def test_sharded_batches_match_one_device_on_4_forced_devices():
     env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=4", JAX_PLATFORMS="cpu")
     r = subprocess.run([sys.executable, "-c", SCRIPT], env=env, capture_output=True, text=True, timeout=600)
     assert r.returncode == 0 and "OK" in r.stdout, r.stderr[-3000:]
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(jax.local_device_count() != 1, reason="checks the one-device path")
 def test_one_device_places_nothing():
     assert _sharding.batch_mesh(None, 1000) is None

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ._resample import resample_arclength
+
 # 8-neighbours in Zhang-Suen order P2..P9 (clockwise from north): (drow, dcol)
 _NB = [(-1, 0), (-1, 1), (0, 1), (1, 1), (1, 0), (1, -1), (0, -1), (-1, -1)]
 
@@ -182,7 +184,5 @@ def from_image(image, threshold: float = 0.5, size: float = 0.6, invert: bool = 
     ext = np.max(np.abs(uv))
     uv *= size / (ext if ext > 0 else 1.0)
     if n is not None and len(uv) >= 2:
-        from .curves import resample_arclength
-
         uv = resample_arclength(uv, n)
     return np.stack([uv[:, 0], np.zeros(len(uv)), uv[:, 1]], axis=-1)
