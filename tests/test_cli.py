@@ -111,3 +111,19 @@ def test_cli_enables_the_compilation_cache(tmp_path, monkeypatch):
         assert jax.config.jax_compilation_cache_dir == str(tmp_path / "cache")
     finally:
         jax.config.update("jax_compilation_cache_dir", old)
+
+
+def test_help_and_bad_arguments_do_not_import_jax():
+    code = ("import sys\nfrom jaxsim.__main__ import main\n"
+            "for argv in (['--help'], ['demo', '--fastt']):\n"
+            "    try:\n        main(argv)\n    except SystemExit:\n        pass\n"
+            "assert 'jax' not in sys.modules, 'jax imported'\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert "``" not in r.stdout  # no literal reST markup in --help
+
+
+def test_bench_without_names_lists_and_runs_nothing():
+    r = jaxsim_cli("bench")
+    assert r.returncode == 0 and "ik_throughput" in r.stdout and "--all" in r.stdout
+    assert "[bench]" not in r.stdout  # nothing started

@@ -141,7 +141,9 @@ def solve(chain: Chain | Skeleton, targets, *, solver="fabrik", rotations=None, 
     shorthand ``"fabrik"`` / ``"ccd"`` / ``"lm"`` with ``max_iters`` (default 100) and
     ``tol`` (default 1e-4) given here.  ``orientations`` and ``orientation_weights``
     are as for :func:`ccd`.  On a skeleton with limits every returned pose is within
-    them (``jaxsim.ik.limit_violation``).
+    them (``jaxsim.ik.limit_violation``), and with limits or orientation targets FABRIK
+    and CCD return the best pose they visited (never one worse than the start), while
+    ``iterations`` counts the sweeps run.
 
     ``rotations`` may be ``(J, 4)`` (shared start pose) or ``(..., J, 4)``.  The batch
     trails in memory inside the kernel, so a large batch is one elementwise loop per
