@@ -3,7 +3,6 @@ split across local devices with ``NamedSharding`` when there are several."""
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 from collections.abc import Sequence
 
@@ -16,7 +15,7 @@ from .. import _sharding
 from .._dataclass import is_concrete
 from .._validate import check_bool, check_finite, check_int, check_positive, check_real
 from ._coarse import block_ids
-from ._colliders import collider_kinds, describe_inside, host_distance
+from ._colliders import SCENE_FIELDS, collider_kinds, count_inside, describe_inside
 from ._integrators import ExplicitEuler, ImplicitEuler
 from ._scene import Cloth, State
 from ._step import _rollout, check_inputs, check_resume
@@ -130,14 +129,12 @@ def check_batched_contact(scenes: Cloth, B: int) -> None:
     if not is_concrete(*jax.tree_util.tree_leaves((scenes.colliders, scenes.contact_gap, scenes.contact_stiffness))):
         return
     for k, c in enumerate(scenes.colliders):
-        for f in dataclasses.fields(c):
-            if f.metadata.get("static"):
-                continue
-            a = np.asarray(getattr(c, f.name))
+        for f in SCENE_FIELDS[type(c)]:
+            a = np.asarray(getattr(c, f))
             if a.ndim < 1 or a.shape[0] != B:
-                raise ValueError(f"batched scene colliders[{k}] ({type(c).__name__}) {f.name} needs a leading ({B},) "
+                raise ValueError(f"batched scene colliders[{k}] ({type(c).__name__}) {f} needs a leading ({B},) "
                                  f"scene axis, got shape {a.shape}; use stack_scenes")
-            check_finite(f"batched scene colliders[{k}] {f.name}", a)
+            check_finite(f"batched scene colliders[{k}] {f}", a)
     for f in ("contact_gap", "contact_stiffness"):
         a = getattr(scenes, f)
         if a is None and f == "contact_stiffness":
@@ -155,13 +152,10 @@ def check_outside(scenes: Cloth, x, what: str) -> None:
         return
     x = np.broadcast_to(np.asarray(x, np.float64), scenes.rest.shape)
     free = ~np.asarray(scenes.pinned)
-    for k, c in enumerate(scenes.colliders):
-        d = np.stack([host_distance(jax.tree_util.tree_map(lambda a: np.asarray(a)[b], c), x[b])
-                      for b in range(x.shape[0])])
-        bad = (d <= 0) & free
-        if bad.any():
-            b = int(np.flatnonzero(bad.any(axis=1))[0])
-            raise ValueError(f"scene {b}: " + describe_inside([(k, type(c).__name__, int(bad[b].sum()))], what))
+    for b in range(x.shape[0]):
+        inside = count_inside(jax.tree_util.tree_map(lambda a: np.asarray(a)[b], scenes.colliders), x[b], free[b])
+        if inside:
+            raise ValueError(f"scene {b}: " + describe_inside(inside, what))
 
 
 def batch_rollout(scenes, state: State, dt, n_steps: int, integrator=ImplicitEuler(), *,

@@ -273,10 +273,7 @@ def check_colliders(colliders, dtype) -> tuple:
             raise ValueError(f"colliders[{k}] must be a cloth.Plane, cloth.Sphere or cloth.Capsule, "
                              f"got {type(c).__name__}")
         if is_concrete(*jax.tree_util.tree_leaves(c)):
-            for f, tail in _SHAPES[type(c)].items():
-                if np.shape(getattr(c, f)) != tail:
-                    raise ValueError(f"colliders[{k}] ({type(c).__name__}) {f} must have shape {tail} in a scene, "
-                                     f"got {np.shape(getattr(c, f))} (a per-step path goes to rollout's colliders=)")
+            check_scene_shapes(c, k, "a per-step path goes to rollout's colliders=")
         out.append(jax.tree_util.tree_map(lambda a: jnp.asarray(a, dtype), c))
     return tuple(out)
 
@@ -285,6 +282,17 @@ def check_colliders(colliders, dtype) -> tuple:
 _SHAPES = {Plane: {"normal": (3,), "offset": (), "friction": ()},
            Sphere: {"center": (3,), "radius": (), "friction": ()},
            Capsule: {"a": (3,), "b": (3,), "radius": (), "friction": ()}}
+#: Each collider's data fields (its leaves), in order.
+SCENE_FIELDS = {kind: tuple(shapes) for kind, shapes in _SHAPES.items()}
+
+
+def check_scene_shapes(c, k: int, hint: str) -> None:
+    """Raise unless every data field of ``colliders[k]`` has its scene shape (no leading
+    path or batch axis); ``hint`` ends the message."""
+    for f, tail in _SHAPES[type(c)].items():
+        if np.shape(getattr(c, f)) != tail:
+            raise ValueError(f"colliders[{k}] ({type(c).__name__}) {f} has shape {np.shape(getattr(c, f))}, want "
+                             f"{tail} in a scene ({hint})")
 
 
 def host_distance(c, x) -> np.ndarray:

@@ -32,18 +32,15 @@ def _polys(x, T):
 
 def _check_colliders(colliders) -> tuple:
     """One static collider or a tuple of them, each with a scene's shapes (no path axis)."""
-    from ..cloth._colliders import _SHAPES, COLLIDERS
+    from ..cloth._colliders import COLLIDERS, check_scene_shapes
 
     if isinstance(colliders, COLLIDERS):
         colliders = (colliders,)
     if not isinstance(colliders, (tuple, list)) or not all(isinstance(c, COLLIDERS) for c in colliders):
         raise ValueError(f"colliders must be a tuple of cloth.Plane, cloth.Sphere or cloth.Capsule, got {colliders!r:.120}")
     for k, c in enumerate(colliders):
-        for f, tail in _SHAPES[type(c)].items():
-            if np.shape(getattr(c, f)) != tail:
-                raise ValueError(f"colliders[{k}] ({type(c).__name__}) {f} has shape {np.shape(getattr(c, f))}, "
-                                 f"want {tail}: draw one scene's or one step's colliders "
-                                 "(jax.tree_util.tree_map(lambda a: a[t], colliders))")
+        check_scene_shapes(c, k, "draw one scene's or one step's colliders: "
+                                 "jax.tree_util.tree_map(lambda a: a[t], colliders)")
     return tuple(colliders)
 
 
