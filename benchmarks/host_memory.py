@@ -57,7 +57,7 @@ def build(case):
 
     chain = ik.Chain(np.asarray(ik.straight_chain(np.ones(5, np.float32), direction=(0, 1, 0)).offsets, np.float32))
     targets = jnp.asarray(random_targets(100_000, 5.0, np.random.default_rng(0)))
-    return jax.jit(lambda t: ik.solve(chain, t, solver="fabrik", max_iters=10, tol=0.0)), (targets,)
+    return jax.jit(lambda t: ik.solve(chain, t[:, None], solver="fabrik", max_iters=10, tol=0.0)), (targets,)
 
 
 def child(case, retained):

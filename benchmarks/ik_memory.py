@@ -28,7 +28,7 @@ SIZES = (10_000, 100_000)
 def footprint(solver, n, trace):
     chain = ik.straight_chain(np.ones(5, np.float32))
     t = jax.ShapeDtypeStruct((n, 3), jnp.float32)
-    f = jax.jit(lambda tg: getattr(ik, solver)(chain, tg, trace=trace))
+    f = jax.jit(lambda tg: getattr(ik, solver)(chain, tg[:, None], trace=trace))
     m = f.lower(t).compile().memory_analysis()
     return m.temp_size_in_bytes + m.output_size_in_bytes + m.argument_size_in_bytes
 

@@ -80,7 +80,7 @@ def main() -> None:
     targets = jnp.asarray(random_targets(args.n, 5.0, np.random.default_rng(0)))
     out = {}
     for solver in ("fabrik", "ccd"):
-        fn = jax.jit(lambda t, solver=solver: ik.solve(chain, t, solver=solver, max_iters=10, tol=0.0))
+        fn = jax.jit(lambda t, solver=solver: ik.solve(chain, t[:, None], solver=solver, max_iters=10, tol=0.0))
         timing = time_call(fn, targets)
         hlo = fn.lower(targets).compile().as_text()
         row = {"solves_per_s": args.n / timing["run_s"], **timing, "hlo_fusions": hlo.count(" fusion("),

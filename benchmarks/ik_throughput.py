@@ -136,7 +136,7 @@ def hinge_chain_case(record, n=200):
     jax.config.update("jax_enable_x64", True)
     axes = [(0, 0, 1), (0, 1, 0), (0, 0, 1), (0, 1, 0)]
     offsets = np.array([[0, 0, 0]] + [[1.0, 0, 0]] * 4)
-    sk = ik.Skeleton.from_chain(ik.Chain(offsets), limits=tuple(ik.Hinge(a, -2.0, 2.0) for a in axes) + (None,))
+    sk = ik.Chain(offsets, limits=tuple(ik.Hinge(a, -2.0, 2.0) for a in axes) + (None,))
     ang = np.random.default_rng(3).uniform(-2, 2, size=(n, 4))
     q = np.zeros((n, 5, 4))
     q[..., 0] = 1.0
@@ -222,8 +222,7 @@ def main():
     if args.only_limits:
         return only_limits()
     n = args.n
-    chain = ik.straight_chain(np.ones(5, np.float32), direction=(0, 1, 0))
-    chain = ik.Chain(np.asarray(chain.offsets, np.float32))
+    chain = ik.Chain(np.asarray(ik.straight_chain(np.ones(5), direction=(0, 1, 0)).offsets, np.float32))
     rng = np.random.default_rng(0)
     targets = jnp.asarray(random_targets(n, 5.0, rng))
     rows = []
@@ -233,7 +232,7 @@ def main():
         for mode, kw in (("10 sweeps", dict(max_iters=10, tol=0.0)), ("tol 1e-4", dict(max_iters=100, tol=1e-4))):
             for unroll, early in ((True, False), (False, False), (True, True)):
                 fn = jax.jit(lambda t, kw=kw, unroll=unroll, early=early: ik.solve(
-                    chain, t, solver=solver, unroll=unroll, early_exit=early, **kw))
+                    chain, t[:, None], solver=solver, unroll=unroll, early_exit=early, **kw))
                 timing = time_call(fn, targets)
                 res = fn(targets)
                 hlo = fn.lower(targets).compile().as_text()  # optimised HLO: fusions in the whole solve
@@ -244,7 +243,7 @@ def main():
                 record(f"{solver} {mode} solve unroll={unroll} early_exit={early}", solver, mode, timing, n, extra)
             # naive layout: vmap of the one-target solver (batch becomes the leading axis)
             one = {"fabrik": ik.fabrik, "ccd": ik.ccd}[solver]
-            vm = jax.jit(jax.vmap(lambda t, kw=kw: one(chain, t, trace=False, **kw).positions))
+            vm = jax.jit(jax.vmap(lambda t, kw=kw: one(chain, t, **kw).positions))
             record(f"{solver} {mode} vmap(one-target)", solver, mode, time_call(vm, targets, repeats=3), n)
 
     humanoid = humanoid_case(record, args.humanoid_sets)
@@ -262,7 +261,7 @@ def main():
     sub = np.asarray(targets[:2000])
     sub = sub[np.linalg.norm(sub, axis=1) < 4.9][:1000]
     ref = numpy_fabrik(np.asarray(chain.offsets, np.float64), sub.astype(np.float64), 10)
-    ours = ik.solve(chain, jnp.asarray(sub), solver="fabrik", max_iters=10, tol=0.0)
+    ours = ik.solve(chain, jnp.asarray(sub)[:, None], solver="fabrik", max_iters=10, tol=0.0)
     agree = float(np.max(np.abs(np.asarray(ours.positions) - ref)))
 
     ikpy_rate = None

@@ -42,7 +42,7 @@ def targets(n):
     return jnp.asarray(d * rng.uniform(0.5, 4.5, size=(n, 1)), jnp.float32)
 def ik_time(n, sharded):
     t = targets(n)
-    r = time_call(lambda: ik.solve(chain, t, max_iters=10, tol=0.0, sharded=sharded).positions, repeats=5)
+    r = time_call(lambda: ik.solve(chain, t[:, None], max_iters=10, tol=0.0, sharded=sharded).positions, repeats=5)
     return {"n": n, **r, "per_s": n / r["run_s"]}
 out["ik_strong"] = ik_time(100_000, None)
 out["ik_weak"] = ik_time(25_000 * D, None)

@@ -9,7 +9,7 @@ from jaxsim import cloth as C, curves, ik, optim, viz
 from jaxsim.curves import _image
 
 ARM = ik.lab_arm()
-TARGETS = curves.circle()[:6]
+TARGETS = curves.circle()[:6, None]  # (6, 1, 3): six frames, the arm's one effector
 
 
 def raises(match, fn, *args, **kw):
@@ -42,12 +42,12 @@ def test_track_checks_start_rotations():
 
 
 def test_track_under_jit_survives_a_nan_frame():
-    t = np.asarray(curves.circle()[:20]).copy()
+    t = np.asarray(curves.circle()[:20, None]).copy()
     t[5] = np.nan
     res = jax.jit(lambda tt: ik.track(ARM, tt))(jnp.asarray(t))
     assert np.all(np.isfinite(np.asarray(res.rotations))) and np.all(np.isfinite(np.asarray(res.positions)))
     err, conv = np.asarray(res.error), np.asarray(res.converged)
-    assert np.isinf(err[5]) and not conv[5] and int(res.iterations[5]) == 0
+    assert np.isinf(err[5]).all() and not conv[5] and int(res.iterations[5]) == 0
     assert conv[6:].all() and np.all(err[6:] < 1e-4)  # later frames go on from the last good pose
     np.testing.assert_array_equal(np.asarray(res.rotations[5]), np.asarray(res.rotations[4]))
     assert not np.any(np.isnan(np.asarray(res.trace)))
@@ -82,6 +82,10 @@ def test_chain_checks():
     raises("direction must be a finite non-zero vector", ik.straight_chain, [1.0, 1.0], direction=(0, 0, 0))
     raises("too large for float32", ik.Chain, np.array([[0, 0, 0], [1e19, 0, 0], [1e19, 0, 0]], np.float32))
     ik.Chain(np.array([[0, 0, 0], [1e19, 0, 0], [1e19, 0, 0]], np.float64))  # fine in float64
+    # one model, one validator: a tree gets the chain's checks (it used to accept these offsets)
+    raises("too large for float32", ik.Skeleton, parents=(-1, 0, 0),
+           offsets=np.array([[0, 0, 0], [3e19, 0, 0], [0, 3e19, 0]], np.float32))
+    assert isinstance(ik.Chain(np.ones((3, 3))), ik.Skeleton) and ik.lab_arm().is_chain
     raises("float32 or float64", ik.Chain, np.array([[0, 0, 0], [1, 0, 0]], np.float16))
     raises("zero-length bones", ik.Chain, np.array([[0, 0, 0], [1e-30, 0, 0]], np.float32))
 
@@ -177,8 +181,8 @@ def test_nearest_start_matches_brute_force():
 
 def test_zero_start_rotation_under_jit_is_the_identity():
     """Outside jit a zero quaternion raises; inside, where nothing can raise, it is the identity."""
-    raises("zero quaternion", ik.fabrik, ARM, TARGETS[0], np.zeros((5, 4)))
+    raises("zero quaternion", ik.fabrik, ARM, TARGETS[0], rotations=np.zeros((5, 4)))
     for solver in (ik.fabrik, ik.ccd):
-        res = jax.jit(lambda q, f=solver: f(ARM, TARGETS[0], q, max_iters=30))(jnp.zeros((5, 4)))
+        res = jax.jit(lambda q, f=solver: f(ARM, TARGETS[0], rotations=q, max_iters=30))(jnp.zeros((5, 4)))
         ref = solver(ARM, TARGETS[0], max_iters=30)
         np.testing.assert_allclose(np.asarray(res.positions), np.asarray(ref.positions), atol=1e-12)

@@ -110,7 +110,7 @@ def nonblank(path):
 def test_plots_and_animations_write_real_images(tmp_path, digit):
     arm = ik.lab_arm()
     targets = curves.circle(12)
-    res = ik.track(arm, targets)
+    res = ik.track(arm, targets[:, None])
     fig = viz.plot_chain(res.positions[0], targets[0])
     p = viz.save(fig, str(tmp_path / "chain.png"))
     w, h = fig.get_size_inches() * fig.dpi

@@ -27,7 +27,7 @@ def test_ik_implicit_gradient_equals_unrolled_at_converged_solution(solver):
         return unrolled, implicit
 
     t = jnp.array([0.6, 0.3, 0.4])
-    assert float(ik.solve(arm, t, solver=solver, max_iters=100, tol=0.0).error) < 1e-12
+    assert float(ik.solve(arm, t, solver=solver, max_iters=100, tol=0.0).error[0]) < 1e-12
     unrolled, implicit = jax.jit(jacobians, static_argnums=(2, 3))(t, arm.offsets, 100, "end")
     for u, i in zip(unrolled, implicit):
         np.testing.assert_allclose(i, u, atol=1e-6)

@@ -18,7 +18,7 @@ SCRIPT = textwrap.dedent("""
     assert jax.local_device_count() == 4, jax.devices()
     arm = ik.lab_arm()
     rng = np.random.default_rng(0)
-    targets = np.asarray(arm.root) + rng.normal(size=(10_000, 3))
+    targets = np.asarray(arm.root) + rng.normal(size=(10_000, 1, 3))
     a = ik.solve(arm, targets, max_iters=20)                 # sharded by default on 4 devices
     b = ik.solve(arm, targets, max_iters=20, sharded=False)  # one device
     for name in ("rotations", "positions", "error"):
@@ -63,7 +63,7 @@ def test_one_device_places_nothing():
     with pytest.raises(ValueError, match="more than one"):
         _sharding.batch_mesh(True, 1000)
     arm = ik.lab_arm()
-    res = ik.solve(arm, np.zeros((8, 3)) + [0.5, 0.5, 0.5], max_iters=5)
+    res = ik.solve(arm, np.zeros((8, 1, 3)) + [0.5, 0.5, 0.5], max_iters=5)
     assert len(res.positions.sharding.device_set) == 1
     scenes = [cloth.grid(2, 0.2), cloth.grid(2, 0.2, stiffness=50.0)]
     xs, _ = cloth.batch_rollout(scenes, cloth.State.at_rest(scenes[0]), 1 / 60, 3)

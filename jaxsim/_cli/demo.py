@@ -32,7 +32,7 @@ def _ik_section(out: str, fast: bool, lines: list[str]) -> None:
     for k, (name, solver) in enumerate(jobs, 1):
         targets = curves.CURVES[name]()
         print(f"[demo] IK {k}/{len(jobs)}: {name} ({len(targets)} points) with {solver} ...", flush=True)
-        res, _, run_s = _timed(lambda: ik.track(chain, targets, solver=solver))
+        res, _, run_s = _timed(lambda: ik.track(chain, targets[:, None], solver=solver))
         stem = f"ik_{name}" + ("" if solver == "fabrik" else f"_{solver}")
         title = f"{name}, {solver}"
         viz.save(viz.plot_tracking(res, targets, title=title), os.path.join(out, stem + ".png"))

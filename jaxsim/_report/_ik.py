@@ -49,7 +49,7 @@ def _datasets(doc: Doc, dtype, M, n, joints=(6, 10)):
     for name in ("circle", "cardioid"):
         tg = curves.CURVES[name]().astype(dtype)
         for s in SOLVERS:
-            res, secs = _timed(lambda: ik.track(arm, tg, solver=s, max_iters=M, tol=0.0))
+            res, secs = _timed(lambda: ik.track(arm, tg[:, None], solver=s, max_iters=M, tol=0.0))
             out[(f"lab {name}", s)] = (np.asarray(res.trace, np.float64), secs / (len(tg) * M), 0.0)
     for J in joints:
         chain = _chain(J, dtype)
@@ -59,7 +59,7 @@ def _datasets(doc: Doc, dtype, M, n, joints=(6, 10)):
             tg = _targets(n, J - 1, lo, hi, seed=J).astype(dtype)
             floor = np.maximum(np.linalg.norm(tg, axis=1) - (J - 1), 0.0)
             for s in SOLVERS:
-                res, secs = _timed(lambda: ik.solve(chain, tg, solver=s, max_iters=M, tol=0.0, trace=True))
+                res, secs = _timed(lambda: ik.solve(chain, tg[:, None], solver=s, max_iters=M, tol=0.0, trace=True))
                 # for unreachable targets the error cannot go below distance - reach: plot the excess
                 tr = np.asarray(res.trace, np.float64) - floor[:, None]
                 out[(f"{J}-joint {kind}", s)] = (np.maximum(tr, 0.0), secs / (n * M), floor)
@@ -187,7 +187,7 @@ def lab_question(doc: Doc, info: dict) -> None:
     for name in ("circle", "cardioid"):
         tg = curves.CURVES[name]()
         for s in SOLVERS:
-            r = ik.track(arm, tg, solver=s, max_iters=100, tol=1e-4)
+            r = ik.track(arm, tg[:, None], solver=s, max_iters=100, tol=1e-4)
             it = np.asarray(r.iterations)
             rows.append({"curve": name, "solver": s, "mean": float(it.mean()), "max": int(it.max()),
                          "conv": 100.0 * float(np.mean(r.converged))})
@@ -223,7 +223,7 @@ def paper_protocol(doc: Doc) -> None:
         tg = _targets(n, reach, lo, hi, seed=11)
         floor = np.maximum(np.linalg.norm(tg, axis=1) - reach, 0.0)
         for s in SOLVERS:
-            r = ik.solve(chain, tg, solver=s, max_iters=M, tol=0.0, trace=True)
+            r = ik.solve(chain, tg[:, None], solver=s, max_iters=M, tol=0.0, trace=True)
             k = _iters_to(np.asarray(r.trace) - floor[:, None], tol)
             ok = k[np.isfinite(k)]
             rows.append({"targets": kind, "solver": s, "ours": float(ok.mean()) if ok.size else np.nan,
@@ -253,15 +253,15 @@ def jitter_section(doc: Doc) -> None:
     arm = ik.lab_arm()
     tg = curves.heart()
     start = ik.fabrik(arm, tg[0]).rotations
-    free = ik.track(arm, tg, solver="fabrik", rotations=start)
+    free = ik.track(arm, tg[:, None], solver="fabrik", rotations=start)
     j_free = float(np.max(np.asarray(ik.jitter(free.rotations, start))))
     cap = round(0.5 * j_free, 3)  # half the largest free per-frame change, so the bound is active
-    runs = {"free": free, f"max_step_angle={cap}": ik.track(arm, tg, solver="fabrik", rotations=start, max_step_angle=cap)}
+    runs = {"free": free, f"max_step_angle={cap}": ik.track(arm, tg[:, None], solver="fabrik", rotations=start, max_step_angle=cap)}
     fig, axes = fig_axes(2, 1, w=4.6, h=3.2)
     rows = []
     for k, (name, r) in enumerate(runs.items()):
         j = np.degrees(np.asarray(ik.jitter(r.rotations, start)))
-        e = np.asarray(r.error)
+        e = np.asarray(r.error)[:, 0]
         axes[0, 0].plot(j, color=f"C{k}", label=name)
         axes[0, 1].semilogy(np.maximum(e, 1e-17), color=f"C{k}", label=name)
         rows.append({"run": name, "max_j": float(j.max()), "mean_j": float(j.mean()), "max_e": float(e.max()),

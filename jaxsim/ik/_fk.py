@@ -1,9 +1,12 @@
-"""Forward kinematics by the lab's recursion.
+"""Forward kinematics by the lab's recursion, with "parent" read from ``parents``::
 
-``G_0 = L_0``, ``P_0 = offsets[0]``, and for ``i >= 1``::
+    G_0 = L_0,  P_0 = offsets[0];   G_i = G_p L_i,  P_i = P_p + G_p offsets[i]   (p = parents[i])
 
-    G_i = G_{i-1} * L_i                      (GlobalRotation(child) = GlobalRotation(parent) * LocalRotation(child))
-    P_i = P_{i-1} + G_{i-1} * offsets[i]     (GlobalPosition(child) = GlobalPosition(parent) + GlobalRotation(parent) * LocalOffset(child))
+(``GlobalRotation(child) = GlobalRotation(parent) * LocalRotation(child)``,
+``GlobalPosition(child) = GlobalPosition(parent) + GlobalRotation(parent) * LocalOffset(child)``.)
+A tree is unrolled over its static joints (:func:`fk_tree`); a chain may also run the
+recursion as a ``fori_loop`` over stacked arrays (:func:`fk_joints`, see ``_joints``),
+whose compile time does not grow with ``J``.
 """
 
 from __future__ import annotations
@@ -12,14 +15,51 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._dataclass import pytree_dataclass
 from . import _joints, _quat
-from ._chain import Chain, Pose
-from ._skeleton import Skeleton
-from ._tree_fk import skeleton_fk
+
+
+@pytree_dataclass
+class Pose:
+    """Global joint frames from forward kinematics.
+
+    Attributes:
+      positions: ``(..., J, 3)`` world positions of the joints.
+      rotations: ``(..., J, 4)`` world (global) rotations, unit quaternions (w, x, y, z).
+    """
+
+    positions: jax.Array
+    rotations: jax.Array
+
+
+def fk_tree(parents, offsets, local, joints=None):
+    """FK on lists of component tuples.
+
+    Args:
+      parents: static parent tuple.
+      offsets: ``(J, 3)``.
+      local: list of ``J`` local quaternion tuples (any common batch shape).
+      joints: the joints to compute (an ancestor-closed increasing tuple); default all.
+        Other entries of the outputs are ``None``.
+
+    Returns:
+      ``(positions, frames)``: lists of ``J`` vector and quaternion tuples.
+    """
+    J = len(parents)
+    joints = range(J) if joints is None else joints
+    P, G = [None] * J, [None] * J
+    for i in joints:
+        if i == 0:
+            P[0], G[0] = _quat.unstack(offsets[0]), local[0]
+            continue
+        p = parents[i]
+        P[i] = _quat.add(P[p], _quat.rotate(G[p], _quat.unstack(offsets[i])))
+        G[i] = _quat.mul(G[p], local[i])
+    return P, G
 
 
 def fk_joints(offsets, local, batch_shape, *, unroll: bool):
-    """FK on per-joint containers (see ``_joints``).
+    """FK of a chain on per-joint containers (see ``_joints``).
 
     Args:
       offsets: ``(J, 3)`` chain offsets.
@@ -31,54 +71,63 @@ def fk_joints(offsets, local, batch_shape, *, unroll: bool):
       ``(positions, globals)`` containers of the same kind.
     """
     J = offsets.shape[0]
-    dtype = offsets.dtype
     root = tuple(jnp.broadcast_to(c, batch_shape) for c in _quat.unstack(offsets[0]))
     if unroll:
         P, G = [root] * J, [local[0]] * J
     else:
-        P = jnp.zeros((J, 3) + tuple(batch_shape), dtype)
-        P = _joints.put(P, 0, root)
+        P = _joints.put(jnp.zeros((J, 3) + tuple(batch_shape), offsets.dtype), 0, root)
         G = local
 
     def body(i, c):
         P, G = c
         g_parent = _joints.get(G, i - 1)
         p = _quat.add(_joints.get(P, i - 1), _quat.rotate(g_parent, _quat.unstack(offsets[i])))
-        P = _joints.put(P, i, p)
-        G = _joints.put(G, i, _quat.mul(g_parent, _joints.get(local, i)))
-        return P, G
+        return _joints.put(P, i, p), _joints.put(G, i, _quat.mul(g_parent, _joints.get(local, i)))
 
     return _joints.loop(1, J, body, (P, G), unroll=unroll)
 
 
-def fk(chain: Chain, rotations: jax.Array | None = None, *, unroll: bool | None = None) -> Pose:
+def joint_positions(parents, offsets, local):
+    """``(J, 3)`` joint positions of stacked local rotations ``local (J, 4)`` (one pose).
+
+    A chain goes through the rolled recursion (its derivatives compile several times
+    faster than the unrolled tree's), any other tree through :func:`fk_tree`.
+    """
+    J = len(parents)
+    if parents == (-1,) + tuple(range(J - 1)):
+        return fk_joints(offsets, local, (), unroll=False)[0]
+    P, _ = fk_tree(parents, offsets, [_quat.unstack(local[i]) for i in range(J)])
+    return _quat.stack([_quat.stack(p) for p in P])
+
+
+def fk(skeleton, rotations: jax.Array | None = None, *, unroll: bool | None = None) -> Pose:
     """Forward kinematics.
 
     Args:
-      chain: a ``Chain`` with ``offsets (J, 3)``, or a ``Skeleton`` (the recursion with
-        "parent" read from ``parents``; ``unroll`` does not apply).
+      skeleton: a ``Skeleton`` (a chain is one) with ``offsets (J, 3)``.
       rotations: ``(..., J, 4)`` local rotations as quaternions (w, x, y, z); ``None`` is
         the rest pose.  Any leading batch shape is allowed.  They are normalised first
         (``q / |q|``, and a zero quaternion is the identity), so bone lengths are kept
         whatever the scale of ``q``.
-      unroll: unroll the joint loop (default: ``J <= 16`` and a batch of >= 256).
+      unroll: chains only: unroll the joint loop (default: ``J <= 16`` and a batch of
+        >= 256); otherwise a ``fori_loop`` over joints.  Other trees are unrolled.
 
     Returns:
       ``Pose`` with global ``positions (..., J, 3)`` and ``rotations (..., J, 4)``.
     """
-    if isinstance(chain, Skeleton):
-        return skeleton_fk(chain, rotations)
     if rotations is None:
-        rotations = chain.rest_rotations()
-    rotations = jnp.asarray(rotations, dtype=chain.offsets.dtype)
-    J = chain.num_joints
+        rotations = skeleton.rest_rotations()
+    rotations = jnp.asarray(rotations, skeleton.offsets.dtype)
+    J = skeleton.num_joints
     if rotations.shape[-2:] != (J, 4):
         raise ValueError(f"rotations must have shape (..., {J}, 4), got {rotations.shape}")
     rotations = _quat.unit_quaternions(rotations)
-    unroll = _joints.unrolled(J, unroll, int(np.prod(rotations.shape[:-2])))
-    local = _joints.split(jnp.moveaxis(rotations, (-2, -1), (0, 1)), unroll)
-    P, G = fk_joints(chain.offsets, local, rotations.shape[:-2], unroll=unroll)
-    return Pose(
-        positions=jnp.moveaxis(_joints.stack(P), (0, 1), (-2, -1)),
-        rotations=jnp.moveaxis(_joints.stack(G), (0, 1), (-2, -1)),
-    )
+    batch = rotations.shape[:-2]
+    if skeleton.is_chain and not _joints.unrolled(J, unroll, int(np.prod(batch))):
+        P, G = fk_joints(skeleton.offsets, jnp.moveaxis(rotations, (-2, -1), (0, 1)), batch, unroll=False)
+        return Pose(positions=jnp.moveaxis(P, (0, 1), (-2, -1)), rotations=jnp.moveaxis(G, (0, 1), (-2, -1)))
+    local = [_quat.unstack(rotations[..., i, :], axis=-1) for i in range(J)]
+    P, G = fk_tree(skeleton.parents, skeleton.offsets, local)
+    P = [tuple(jnp.broadcast_to(c, batch) for c in p) for p in P]
+    return Pose(positions=jnp.stack([_quat.stack(p, axis=-1) for p in P], axis=-2),
+                rotations=jnp.stack([_quat.stack(g, axis=-1) for g in G], axis=-2))

@@ -15,9 +15,8 @@ from . import _quat
 
 #: By default the joint loop is unrolled for chains of at most this many joints ...
 UNROLL_MAX_JOINTS = 16
-#: ... and batches of at least this many targets (see ``benchmarks/ik_throughput.py``:
-#: unrolled is ~5x faster on 100k targets; for one target the rolled loop runs faster
-#: and compiles several times faster, its gradient above all).
+#: ... and batches of at least this many targets (``benchmarks/ik_throughput.py``;
+#: docs/notebook.md, "Unrolled joint loop").
 UNROLL_MIN_BATCH = 256
 
 

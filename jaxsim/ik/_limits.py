@@ -156,9 +156,27 @@ class LimitTable:
     hi: jax.Array
     swing: jax.Array
 
-    def joint(self, i):
-        """Joint ``i``'s ``(kind, axis tuple, lo, hi, swing)``."""
-        return self.kinds[i], _quat.unstack(self.axis[i]), self.lo[i], self.hi[i], self.swing[i]
+    def joint(self, i) -> JointLimit:
+        """Joint ``i``'s limit."""
+        return JointLimit(self.kinds[i], _quat.unstack(self.axis[i]), self.lo[i], self.hi[i], self.swing[i])
+
+
+@dataclasses.dataclass(frozen=True)
+class JointLimit:
+    """One joint's limit as solver data (a row of :class:`LimitTable`).
+
+    Attributes:
+      kind: ``"free" | "fixed" | "hinge" | "swing"``.
+      axis: unit hinge or twist axis, a vector tuple (parent frame).
+      lo, hi: ``()`` hinge or twist range (rad).
+      swing: ``()`` cone half-angle (rad).
+    """
+
+    kind: str
+    axis: tuple
+    lo: object
+    hi: object
+    swing: object
 
 
 def limit_table(skeleton) -> LimitTable | None:
@@ -248,8 +266,9 @@ def best_angle(n, a, b, w):
     return _safe_atan2(s, c)
 
 
-def project(q, kind, a, lo, hi, swing):
+def project(q, lim: JointLimit):
     """``q`` (a unit quaternion tuple, any batch shape) moved into one joint's limit set."""
+    kind, a, lo, hi, swing = lim.kind, lim.axis, lim.lo, lim.hi, lim.swing
     if kind == "free":
         return q
     if kind == "fixed":
@@ -263,8 +282,9 @@ def project(q, kind, a, lo, hi, swing):
     return _quat.renormalize(_quat.mul(s, twist))
 
 
-def violation(q, kind, a, lo, hi, swing):
+def violation(q, lim: JointLimit):
     """Radians by which ``q`` lies outside one joint's limit set (0 inside)."""
+    kind, a, lo, hi, swing = lim.kind, lim.axis, lim.lo, lim.hi, lim.swing
     if kind == "free":
         return jnp.zeros_like(q[0])
     if kind == "fixed":
@@ -283,7 +303,7 @@ def project_all(table: LimitTable | None, L, joints=None):
     out = list(L)
     for i in joints:
         if out[i] is not None and table.kinds[i] != "free":
-            out[i] = project(out[i], *table.joint(i))
+            out[i] = project(out[i], table.joint(i))
     return out
 
 
@@ -304,7 +324,7 @@ def limit_violation(skeleton, rotations) -> jax.Array:
     if table is None:
         v = jnp.zeros(rotations.shape[:-1], rotations.dtype)
     else:
-        v = jnp.stack([violation(_quat.unstack(rotations[..., i, :], axis=-1), *table.joint(i)) for i in range(J)],
+        v = jnp.stack([violation(_quat.unstack(rotations[..., i, :], axis=-1), table.joint(i)) for i in range(J)],
                       axis=-1)
     return jnp.where(bad, jnp.inf, v)
 

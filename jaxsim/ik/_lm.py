@@ -33,9 +33,8 @@ from .._dataclass import pytree_dataclass
 from . import _quat
 from ._limits import hinge_angle, project_all
 from ._loop import masked_sweeps
-from ._tree_fk import fk_tree
-from ._tree_pose import finish, reachable_flags
-from ._tree_sweeps import effector_sq_errors, moving_joints
+from ._fk import fk_tree
+from ._pose import OrientTargets, effector_sq_errors, finish, moving_joints, reachable_flags
 
 #: Bounds on the relative damping ``lambda``; the lower one is ``LAMBDA_MIN_EPS`` machine epsilons.
 LAMBDA_MIN_EPS = 1e3
@@ -107,12 +106,11 @@ def _residual(topo, offsets, L, tgt, w, orient):
     P, G = _pose(topo, offsets, L)
     parts = [jnp.sqrt(w[k]) * (_quat.stack(P[e]) - _quat.stack(tgt[k])) for k, e in enumerate(topo.effectors)]
     if orient is not None:
-        rots, ow = orient
         for k, e in enumerate(topo.effectors):
-            c = jnp.sqrt(0.5 * w[k]) * ow[k]
+            c = jnp.sqrt(0.5 * w[k]) * orient.weights[k]
             for u in _AXES:
                 u = _quat.unstack(u.astype(L.dtype))
-                parts.append(c * (_quat.stack(_quat.rotate(G[e], u)) - _quat.stack(_quat.rotate(rots[k], u))))
+                parts.append(c * (_quat.stack(_quat.rotate(G[e], u)) - _quat.stack(_quat.rotate(orient.rotations[k], u))))
     r = jnp.concatenate(parts)
     return r, functools.reduce(jnp.maximum, effector_sq_errors(topo, P, G, tgt, orient))
 
@@ -127,8 +125,8 @@ def lm_one(offsets, targets, local0, weights, tol, table, orients, orient_weight
     dtype = offsets.dtype
     tgt = [_quat.unstack(targets[k]) for k in range(E)]
     w = [weights[k] for k in range(E)]
-    orient = None if orients is None else ([_quat.unstack(orients[k]) for k in range(E)],
-                                           [orient_weights[k] for k in range(E)])
+    orient = None if orients is None else OrientTargets([_quat.unstack(orients[k]) for k in range(E)],
+                                                        [orient_weights[k] for k in range(E)])
     dofs = _dofs(topo, table, orient is not None)
     n = sum(1 if h else 3 for _, h in dofs)
     lam_min = LAMBDA_MIN_EPS * jnp.finfo(dtype).eps
@@ -159,7 +157,8 @@ def lm_one(offsets, targets, local0, weights, tol, table, orients, orient_weight
             held = jnp.zeros((n,), bool)
             for k in hinge_at:
                 o, i = dofs_index(dofs)[k][0], dofs[k][0]
-                _, ax, lo, hi, _ = table.joint(i)
+                lim = table.joint(i)
+                ax, lo, hi = lim.axis, lim.lo, lim.hi
                 phi = hinge_angle(_quat.unstack(s.rotations[i]), ax)
                 eps = 1e3 * jnp.finfo(dtype).eps
                 held = held.at[o].set(((phi <= lo + eps) & (d[o] < 0)) | ((phi >= hi - eps) & (d[o] > 0)))

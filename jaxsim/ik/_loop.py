@@ -5,7 +5,8 @@ stops when the whole batch is done.  A finished element keeps its state either b
 
 from __future__ import annotations
 
-from typing import Any
+import dataclasses
+from typing import Any, Callable
 
 import jax
 import jax.numpy as jnp
@@ -39,6 +40,39 @@ class _SweepCarry:
     done: jax.Array
     best: Any = None
     best_e2: jax.Array | None = None
+
+
+@dataclasses.dataclass(frozen=True)
+class SweepPlan:
+    """One algorithm's sweeps on one problem, as an algorithm module lays them out.
+
+    Attributes:
+      state0: the start state (a pytree of ``B``-shaped arrays).
+      sweep: ``state -> (state, sq_error)``, as for :func:`masked_sweeps`.
+      rotations: ``final state -> J`` local rotations (a list of quaternion tuples, or
+        a stacked ``(J, 4, *B)`` array on a rolled chain).
+      err0, iters0, done0: ``B``-shaped start error, sweep count and done flags.
+      freeze: ``"where"`` or ``"snapshot"`` (see :func:`masked_sweeps`).
+      keep_best: return the best state visited (see :func:`masked_sweeps`).
+    """
+
+    state0: Any
+    sweep: Callable
+    rotations: Callable
+    err0: Any
+    iters0: Any
+    done0: Any
+    freeze: str = "where"
+    keep_best: bool = False
+
+
+def run_plan(plan: SweepPlan, tol, *, max_iters, trace, early_exit):
+    """``(local rotations, iterations, trace)`` of :func:`masked_sweeps` on ``plan``."""
+    B = jnp.shape(plan.iters0)
+    state, iters, errs = masked_sweeps(plan.sweep, plan.state0, plan.err0, plan.iters0,
+                                       jnp.broadcast_to(plan.done0, B), tol, max_iters=max_iters, trace=trace,
+                                       early_exit=early_exit, freeze=plan.freeze, keep_best=plan.keep_best)
+    return plan.rotations(state), iters, errs
 
 
 def masked_sweeps(sweep, state0, err0, iters0, done0, tol, *, max_iters, trace, early_exit, freeze="where",

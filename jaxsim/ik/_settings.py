@@ -1,10 +1,9 @@
-"""IK solver settings: small frozen, hashable objects, like ``cloth.ImplicitEuler``."""
+"""IK solver settings: small frozen, hashable objects, like ``cloth.ImplicitEuler``; the
+driver dispatches on their type (``_kernel.PLANS``, ``_solve``)."""
 
 from __future__ import annotations
 
 import dataclasses
-from typing import ClassVar
-
 import jax
 
 from .._validate import check_int, check_real, check_tol
@@ -18,7 +17,6 @@ DEFAULT_TOL = 1e-4
 class _Settings:
     max_iters: int = DEFAULT_MAX_ITERS
     tol: float = DEFAULT_TOL
-    kind: ClassVar[str] = ""
 
     def __post_init__(self):
         object.__setattr__(self, "max_iters", check_int("max_iters", self.max_iters, 1))
@@ -36,8 +34,6 @@ class FABRIK(_Settings):
       tol: converged when every effector is within ``tol`` of its target (scene units).
     """
 
-    kind: ClassVar[str] = "fabrik"
-
 
 @dataclasses.dataclass(frozen=True)
 class CCD(_Settings):
@@ -47,8 +43,6 @@ class CCD(_Settings):
       max_iters: sweeps scanned (static; a new value recompiles).
       tol: converged when every effector is within ``tol`` of its target (scene units).
     """
-
-    kind: ClassVar[str] = "ccd"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -63,7 +57,6 @@ class LevenbergMarquardt(_Settings):
     """
 
     damping: float = 1e-2
-    kind: ClassVar[str] = "lm"
 
     def __post_init__(self):
         super().__post_init__()
@@ -87,9 +80,3 @@ def resolve_settings(solver, max_iters, tol) -> _Settings:
                          f"LevenbergMarquardt object, got {solver!r}")
     return _BY_NAME[solver](DEFAULT_MAX_ITERS if max_iters is None else max_iters,
                             DEFAULT_TOL if tol is None else tol)
-
-
-def resolve(solver, max_iters, tol):
-    """``(kind, max_iters, tol)`` of :func:`resolve_settings`."""
-    s = resolve_settings(solver, max_iters, tol)
-    return s.kind, s.max_iters, s.tol

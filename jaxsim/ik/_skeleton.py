@@ -1,8 +1,8 @@
-"""Joint trees: the ``Skeleton`` pytree and its static topology.
+"""The IK model: the ``Skeleton`` pytree (a tree of joints; a chain is one) and its static topology.
 
 A skeleton is a tree of ``J`` ball joints in topological order (``parents[i] < i``).
-Forward kinematics is the lab's recursion with "parent" read from ``parents``; a
-``Chain`` is the skeleton with ``parents = (-1, 0, 1, ..., J-2)``.
+Forward kinematics is the lab's recursion with "parent" read from ``parents``; a chain
+(:func:`Chain`, the lab's arm) is the skeleton with ``parents = (-1, 0, 1, ..., J-2)``.
 """
 
 from __future__ import annotations
@@ -17,7 +17,6 @@ import numpy as np
 from .._dataclass import is_concrete, pytree_dataclass, static_field
 from .._dtype import as_float, check_array_dtype, tiny
 from .._validate import check_finite
-from ._chain import Chain
 from ._limits import check_limits
 
 
@@ -49,18 +48,20 @@ class Skeleton:
 
     Attributes:
       parents: static tuple of ``J`` ints; ``parents[0] = -1`` and ``0 <= parents[i] < i``.
-      offsets: ``(J, 3)``, as for ``Chain``: ``offsets[0]`` is the root's world position,
-        ``offsets[i]`` joint ``i``'s offset from its parent in the parent's frame (scene
-        units; metres for :func:`jaxsim.ik.humanoid`).
+      offsets: ``(J, 3)``: ``offsets[0]`` is the root's world position, ``offsets[i]``
+        joint ``i``'s offset from its parent in the parent's frame (the lab's
+        ``LocalOffset``; scene units, metres for :func:`jaxsim.ik.humanoid`).
       names: optional static tuple of ``J`` distinct joint names.
       limits: optional static tuple of ``J`` joint limits (``ik.Hinge``, ``ik.SwingTwist``,
         ``ik.Fixed``, or ``None``/``ik.Free`` for a free joint); ``None`` = all free.
         Every solver returns poses within them (see ``jaxsim.ik._limits``).
 
     Raises:
-      ValueError: on wrong shapes, a parent out of order or out of range, a second root,
-        zero-length bones, non-finite values, duplicate names, limits for a different
-        number of joints, or a half-precision dtype.
+      ValueError: on wrong shapes, fewer than 2 joints, a parent out of order or out of
+        range, a second root, zero-length bones, non-finite values, duplicate names,
+        limits for a different number of joints, a half-precision dtype, or a skeleton
+        too large for its dtype (squared distances across it must not overflow: about
+        4e18 scene units in float32).
     """
 
     parents: tuple = static_field()
@@ -79,25 +80,26 @@ class Skeleton:
                 raise ValueError("joint names must be distinct")
             object.__setattr__(self, "names", names)
         if not is_concrete(self.offsets):
-            return  # rebuilt inside a transformation
+            return  # rebuilt inside a transformation: leaves are tracers or placeholders
         a = np.asarray(self.offsets)
         J = len(self.parents)
         if a.shape != (J, 3):
-            raise ValueError(f"Skeleton offsets must have shape ({J}, 3) for {J} parents, got {a.shape}")
+            raise ValueError(f"Skeleton offsets must have shape ({J}, 3) for {J} joints, got {a.shape}")
         check_array_dtype("Skeleton", a.dtype)
         check_finite("Skeleton offsets", a)
         offsets = as_float(self.offsets)
+        dtype = offsets.dtype
         lengths = np.linalg.norm(a[1:].astype(np.float64), axis=-1)
-        if np.any(lengths <= tiny(offsets.dtype)):
-            bad = (np.flatnonzero(lengths <= tiny(offsets.dtype)) + 1).tolist()
-            raise ValueError(f"Skeleton has zero-length bones at joint(s) {bad}")
+        if np.any(lengths <= tiny(dtype)):
+            bad = (np.flatnonzero(lengths <= tiny(dtype)) + 1).tolist()
+            raise ValueError(f"Skeleton has zero-length bones (shorter than {tiny(dtype):.1e} in {dtype}) at "
+                             f"joint(s) {bad}")
+        span = float(np.abs(a[0].astype(np.float64)).max() + lengths.sum())
+        limit = float(np.sqrt(np.finfo(dtype).max)) / 8
+        if span >= limit:
+            raise ValueError(f"Skeleton spans {span:.3g} scene units, too large for {dtype} (squared distances "
+                             f"overflow beyond {limit:.2g}); use float64 or smaller units")
         object.__setattr__(self, "offsets", offsets)
-
-    @classmethod
-    def from_chain(cls, chain: Chain, names=None, limits=None) -> Skeleton:
-        """The chain as a skeleton: ``parents = (-1, 0, 1, ..., J-2)``."""
-        J = chain.num_joints
-        return cls(parents=(-1,) + tuple(range(J - 1)), offsets=chain.offsets, names=names, limits=limits)
 
     def with_limits(self, limits) -> Skeleton:
         """The same skeleton with ``limits`` (one per joint, or ``None`` for none)."""
@@ -125,7 +127,23 @@ class Skeleton:
 
     @property
     def is_chain(self) -> bool:
-        return self.parents == (-1,) + tuple(range(self.num_joints - 1))
+        """Whether every joint's parent is the joint before it (a serial chain)."""
+        return self.parents == chain_parents(self.num_joints)
+
+    @property
+    def lengths(self) -> jax.Array:
+        """``(J-1,)`` bone lengths: ``lengths[i-1] = |offsets[i]|``."""
+        o = self.offsets[1:]
+        return jnp.sqrt(jnp.sum(o * o, axis=-1))
+
+    @property
+    def reach(self) -> jax.Array:
+        """``()`` the longest root-to-joint path length (a chain's total length)."""
+        acc = [jnp.zeros((), self.offsets.dtype)]
+        lengths = self.lengths
+        for i, p in enumerate(self.parents[1:], start=1):
+            acc.append(acc[p] + lengths[i - 1])
+        return functools.reduce(jnp.maximum, acc)
 
     def index(self, name: str) -> int:
         """Joint id of ``name``."""
@@ -136,6 +154,11 @@ class Skeleton:
     def rest_rotations(self) -> jax.Array:
         """``(J, 4)`` identity local rotations, in the skeleton's dtype."""
         return jnp.zeros((self.num_joints, 4), self.offsets.dtype).at[:, 0].set(1.0)
+
+
+def chain_parents(J: int) -> tuple:
+    """``(-1, 0, 1, ..., J-2)``: the parents of a serial chain of ``J`` joints."""
+    return (-1,) + tuple(range(J - 1))
 
 
 @functools.lru_cache(maxsize=None)
@@ -167,6 +190,12 @@ class Topology:
     below: tuple
     effector_slot: tuple
     path: tuple
+
+    @property
+    def is_chain_end(self) -> bool:
+        """A serial chain whose one effector is its last joint (the lean chain kernels' case)."""
+        J = len(self.parents)
+        return self.parents == chain_parents(J) and self.effectors == (J - 1,)
 
     @property
     def moving(self) -> tuple:

@@ -62,13 +62,20 @@ def _frame_axes(ax, targets, positions, plane, title):
     ax.set_title(title)
 
 
+def _end_targets(targets):
+    """A chain's ``(T, 1, 3)`` targets (as ``ik.track`` takes them) as ``(T, 3)``."""
+    t = np.asarray(targets)
+    return t[:, 0] if t.ndim == 3 and t.shape[1] == 1 else t
+
+
 def plot_tracking(result, targets, plane: str = "xz", title: str = ""):
     """Still of a tracked trajectory: final pose, target path, end-effector trail, and
     the per-frame error below.
 
     Args:
-      result: ``IKResult`` from ``jaxsim.ik.track`` (``positions (T, J, 3)``, ``error (T,)``).
-      targets: ``(T, 3)``.
+      result: ``IKResult`` from ``jaxsim.ik.track`` on a chain (``positions (T, J, 3)``,
+        ``error (T, 1)``).
+      targets: ``(T, 1, 3)`` or ``(T, 3)``.
 
     Returns:
       The figure.
@@ -79,7 +86,8 @@ def plot_tracking(result, targets, plane: str = "xz", title: str = ""):
     _check_plane(plane)
     P = check_frames("result.positions", result.positions, (None, 3))
     err = np.asarray(result.error)
-    targets = check_frames("targets", targets, (3,), frames=len(P))
+    err = err.max(-1) if err.ndim == 2 else err
+    targets = check_frames("targets", _end_targets(targets), (3,), frames=len(P))
     fig = Figure(figsize=(5, 6.5), dpi=80)
     FigureCanvasAgg(fig)
     ax, ax2 = fig.subplots(2, 1, gridspec_kw={"height_ratios": [3, 1]})
@@ -103,8 +111,8 @@ def animate_tracking(result, targets, path: str, plane: str = "xz", fps: int = 3
     """Write a GIF of the chain tracing ``targets`` with the target path and the trail.
 
     Args:
-      result: ``IKResult`` from ``jaxsim.ik.track``.
-      targets: ``(T, 3)``.
+      result: ``IKResult`` from ``jaxsim.ik.track`` on a chain.
+      targets: ``(T, 1, 3)`` or ``(T, 3)``.
       path: output ``.gif`` path.
       fps: frames per second of the GIF.
       stride: draw every ``stride``-th frame.
@@ -117,7 +125,7 @@ def animate_tracking(result, targets, path: str, plane: str = "xz", fps: int = 3
     _check_plane(plane)
     fps = check_fps(fps)
     P = check_frames("result.positions", result.positions, (None, 3))
-    targets = check_frames("targets", targets, (3,), frames=len(P))
+    targets = check_frames("targets", _end_targets(targets), (3,), frames=len(P))
     fig, ax = new_figure(4, 4, dpi=dpi)
     _frame_axes(ax, targets, P, plane, title)
     tu, tv = _proj(targets, plane)

@@ -1,4 +1,6 @@
-"""A built-in humanoid skeleton of 24 joints, in metres, y up, facing +z.
+"""Built-in rigs, all of them ``Skeleton``s: chains (the lab's arm, straight chains) and a humanoid.
+
+The humanoid has 24 joints, in metres, y up, facing +z.
 
 Proportions are those of an adult about 1.75 m tall.  The rest pose is a T-pose: arms
 straight out along ±x, legs straight down, feet pointing forward (+z).  ``l_`` is the
@@ -66,7 +68,7 @@ import numpy as np
 from .._dtype import check_float_dtype
 from .._validate import check_bool
 from ._limits import Fixed, Hinge, SwingTwist
-from ._skeleton import Skeleton
+from ._skeleton import Skeleton, chain_parents
 
 _SPINE = [("pelvis", -1, (0.0, 1.0, 0.0)), ("spine1", 0, (0.0, 0.10, 0.0)), ("spine2", 1, (0.0, 0.12, 0.0)),
           ("spine3", 2, (0.0, 0.12, 0.0)), ("neck", 3, (0.0, 0.14, 0.0)), ("head", 4, (0.0, 0.12, 0.0))]
@@ -129,3 +131,42 @@ def humanoid(dtype=None, limits: bool = True) -> Skeleton:
     names = tuple(r[0] for r in rows)
     return Skeleton(parents=tuple(r[1] for r in rows), offsets=offsets, names=names,
                     limits=tuple(_limit(n) for n in names) if limits else None)
+
+
+def Chain(offsets, names=None, limits=None) -> Skeleton:  # noqa: N802 (a constructor, by name)
+    """A serial chain of ``J`` ball joints: the ``Skeleton`` with ``parents = (-1, 0, ..., J-2)``.
+
+    Args:
+      offsets: ``(J, 3)``.  ``offsets[0]`` is the root joint's world position;
+        ``offsets[i]`` for ``i >= 1`` is joint ``i``'s offset from joint ``i-1`` in the
+        parent's frame (the lab's ``LocalOffset``), in scene units (metres in the lab).
+      names, limits: as for :class:`Skeleton`.
+
+    Raises:
+      ValueError: as :class:`Skeleton`, and on offsets that are not ``(J, 3)``.
+    """
+    shape = np.shape(offsets)
+    if len(shape) != 2 or shape[-1] != 3:
+        raise ValueError(f"Chain offsets must have shape (J, 3), got {shape}")
+    if shape[0] < 2:
+        raise ValueError(f"a Chain needs at least 2 joints (one bone), got J={shape[0]}")
+    return Skeleton(parents=chain_parents(shape[0]), offsets=offsets, names=names, limits=limits)
+
+
+def lab_arm() -> Skeleton:
+    """The lab's 5-joint arm: root at (0, 1.7, 0), bones 0.8, 0.4, 0.2, 1.2 down -y (reach 2.6)."""
+    return Chain(np.array([[0.0, 1.7, 0.0], [0.0, -0.8, 0.0], [0.0, -0.4, 0.0], [0.0, -0.2, 0.0], [0.0, -1.2, 0.0]]))
+
+
+def straight_chain(lengths, root=(0.0, 0.0, 0.0), direction=(0.0, 0.0, 1.0)) -> Skeleton:
+    """A chain whose bones of the given ``lengths`` all point along ``direction`` at rest."""
+    lengths = np.asarray(lengths, dtype=np.float64)
+    d = np.asarray(direction, dtype=np.float64)
+    if d.shape != (3,):
+        raise ValueError(f"direction must be a 3-vector, got shape {d.shape}")
+    n = np.linalg.norm(d)
+    if not (np.isfinite(n) and n > 0):
+        raise ValueError(f"direction must be a finite non-zero vector, got {direction!r}")
+    if lengths.ndim != 1:
+        raise ValueError(f"lengths must be a 1D sequence of bone lengths, got shape {lengths.shape}")
+    return Chain(np.concatenate([np.asarray(root, np.float64)[None], lengths[:, None] * (d / n)[None]]))

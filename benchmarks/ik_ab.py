@@ -1,0 +1,158 @@
+"""IK A/B: this checkout's solvers against a baseline revision's, alternated in one process.
+
+The baseline's ``jaxsim`` package is extracted from git (``git archive REV jaxsim``) and
+imported as ``jaxsim_baseline`` beside this checkout's ``jaxsim``.  Each case is compiled
+in both (compile times and optimised-HLO fusion counts recorded apart), then timed in
+alternating rounds (baseline, current, baseline, current, ...), so machine noise hits
+both alike; the paired ratio per round is ``current rate / baseline rate``, and the JSON
+keeps every round, the median ratio and its spread.
+
+Cases: the 6-joint unit chain, 100k float32 targets, FABRIK and CCD, exactly 10 sweeps
+(the throughput benchmark's headline); the free humanoid (hands and ankles), 10k sets,
+10 sweeps and tol 1e-4 with early exit; the humanoid with limits, 1000 sets, FABRIK and
+CCD to tol 1e-4 (early exit), and LM on 16 sets.
+
+Run: ``python benchmarks/ik_ab.py --baseline 93626e0 [--rounds 5]``; writes
+``benchmarks/results/ik_ab.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import os
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(__file__))
+from _common import write  # noqa: E402
+
+import jaxsim  # noqa: E402
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def baseline_package(rev: str):
+    """``jaxsim`` at git revision ``rev``, imported as ``jaxsim_baseline`` (its imports are relative)."""
+    tmp = tempfile.mkdtemp(prefix="jaxsim_ab_")
+    tar = subprocess.run(["git", "-C", ROOT, "archive", rev, "jaxsim"], check=True, capture_output=True).stdout
+    subprocess.run(["tar", "-x", "-C", tmp], input=tar, check=True)
+    shutil.move(os.path.join(tmp, "jaxsim"), os.path.join(tmp, "jaxsim_baseline"))
+    sys.path.insert(0, tmp)
+    return importlib.import_module("jaxsim_baseline")
+
+
+def random_poses(rng, shape, amp=np.pi):
+    ax = rng.normal(size=shape + (3,))
+    ax /= np.linalg.norm(ax, axis=-1, keepdims=True)
+    ang = amp * rng.uniform(size=shape + (1,))
+    return np.concatenate([np.cos(ang / 2), np.sin(ang / 2) * ax], axis=-1)
+
+
+def cases(pkg, n_chain, n_sets):
+    """``{name: (jitted fn, argument, solves per call)}`` for one package."""
+    ik = pkg.ik
+    out = {}
+    chain = ik.Chain(np.asarray(ik.straight_chain(np.ones(5), direction=(0, 1, 0)).offsets, np.float32))
+    rng = np.random.default_rng(0)
+    d = rng.normal(size=(n_chain, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    t = jnp.asarray(d * 5.0 * rng.uniform(0, 1.2, size=(n_chain, 1)) ** (1 / 3), jnp.float32)
+    one_model = isinstance(chain, ik.Skeleton)  # this API takes a chain's targets as (..., 1, 3)
+    for s in ("fabrik", "ccd"):
+        def f(t, s=s):
+            return ik.solve(chain, t[:, None] if one_model else t, solver=s, max_iters=10, tol=0.0, unroll=True)
+        out[f"chain {s} 10 sweeps"] = (jax.jit(f), t, n_chain)
+    H = ik.humanoid(np.float32, limits=False)
+    eff = tuple(H.index(k) for k in ik.HUMANOID_EFFECTORS)
+    T = jnp.asarray(np.asarray(ik.fk(H, random_poses(np.random.default_rng(1), (n_sets, 24))).positions)[:, eff])
+    for s in ("fabrik", "ccd"):
+        out[f"humanoid {s} 10 sweeps"] = (jax.jit(lambda t, s=s: ik.solve(H, t, solver=s, effectors=eff, max_iters=10,
+                                                                          tol=0.0)), T, n_sets)
+        out[f"humanoid {s} tol 1e-4"] = (jax.jit(lambda t, s=s: ik.solve(H, t, solver=s, effectors=eff, max_iters=100,
+                                                                         tol=1e-4, early_exit=True)), T, n_sets)
+    HL = ik.humanoid(np.float32)
+    R = ik.project_limits(HL, random_poses(np.random.default_rng(2), (1000, 24)))
+    TL = jnp.asarray(np.asarray(ik.fk(HL, R).positions)[:, eff])
+    for s, m in (("fabrik", 1000), ("ccd", 1000), ("lm", 16)):
+        out[f"humanoid limits {s} tol 1e-4"] = (jax.jit(lambda t, s=s: ik.solve(HL, t, solver=s, effectors=eff,
+                                                                                max_iters=100, tol=1e-4,
+                                                                                early_exit=True)), TL[:m], m)
+    return out
+
+
+def run_once(fn, arg):
+    t0 = time.perf_counter()
+    jax.block_until_ready(fn(arg))
+    return time.perf_counter() - t0
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--baseline", default="HEAD",
+                    help="git revision to compare against (default HEAD: the working tree against its last commit)")
+    ap.add_argument("--rounds", type=int, default=5)
+    ap.add_argument("--n", type=int, default=100_000, help="chain targets")
+    ap.add_argument("--sets", type=int, default=10_000, help="free-humanoid target sets")
+    ap.add_argument("--only", default=None, help="run only the cases whose name contains this")
+    args = ap.parse_args()
+    base = baseline_package(args.baseline)
+    pkgs = {"baseline": base, "current": jaxsim}
+    built = {k: cases(p, args.n, args.sets) for k, p in pkgs.items()}
+    rows = []
+    for name in built["current"]:
+        if args.only and args.only not in name:
+            continue
+        row = {"case": name, "solves": built["current"][name][2]}
+        for k in pkgs:
+            fn, arg, _ = built[k][name]
+            row[f"{k}_compile_s"] = run_once(fn, arg)
+            row[f"{k}_hlo_fusions"] = fn.lower(arg).compile().as_text().count(" fusion(")
+            res = fn(arg)
+            row[f"{k}_converged"] = float(jnp.mean(res.converged))
+            row[f"{k}_mean_iterations"] = float(jnp.mean(res.iterations))
+        reps = 1 if "lm" in name else 3  # per round: the best of a few calls
+        times = {k: [] for k in pkgs}
+        with_numpy = name == "chain fabrik 10 sweeps"  # and ik_throughput.py's numpy FABRIK in the same rounds
+        if with_numpy:
+            from ik_throughput import numpy_fabrik
+
+            tnp = np.asarray(built["current"][name][1])[:20_000]
+            offs = np.asarray(jaxsim.ik.straight_chain(np.ones(5), direction=(0, 1, 0)).offsets, np.float32)
+            times["numpy"] = []
+        for _ in range(args.rounds):
+            for k in pkgs:  # alternated: baseline, current, (numpy,) baseline, current, ...
+                fn, arg, _ = built[k][name]
+                times[k].append(min(run_once(fn, arg) for _ in range(reps)))
+            if with_numpy:
+                t0 = time.perf_counter()
+                numpy_fabrik(offs, tnp, 10)
+                times["numpy"].append((time.perf_counter() - t0) * row["solves"] / len(tnp))  # scaled to the batch
+        ratios = [b / c for b, c in zip(times["baseline"], times["current"])]  # current rate / baseline rate
+        row.update({f"{k}_solves_per_s": row["solves"] / statistics.median(v) for k, v in times.items()})
+        if with_numpy:
+            row.update({f"{k}_vs_numpy": statistics.median(n / t for n, t in zip(times["numpy"], times[k]))
+                        for k in pkgs})
+        row.update({"rounds_s": times, "paired_ratios": ratios, "median_ratio": statistics.median(ratios),
+                    "min_ratio": min(ratios), "max_ratio": max(ratios)})
+        rows.append(row)
+        print(f"{name:32s} baseline {row['baseline_solves_per_s']:12.1f}/s  current {row['current_solves_per_s']:12.1f}/s"
+              f"  ratio {row['median_ratio']:.3f} [{row['min_ratio']:.3f}, {row['max_ratio']:.3f}]  fusions "
+              f"{row['baseline_hlo_fusions']} -> {row['current_hlo_fusions']}  converged {row['baseline_converged']:.3f}"
+              f" / {row['current_converged']:.3f}" + (f"  vs numpy {row['baseline_vs_numpy']:.1f}x / "
+                                                         f"{row['current_vs_numpy']:.1f}x" if with_numpy else ""),
+              flush=True)
+    write("ik_ab" if args.only is None else f"ik_ab_{args.only.replace(' ', '_')}",
+          {"baseline": args.baseline, "rounds": args.rounds, "rows": rows})
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,135 @@
+"""Boundary checks for every IK entry point, before tracing, into one named record."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._dataclass import is_concrete
+from .._validate import check_bool, check_finite
+from . import _quat
+from ._settings import _Settings
+from ._skeleton import Skeleton, check_effectors
+
+#: Default orientation weight (scene units per radian): 1 degree of error weighs as ~1.7 mm.
+ORIENTATION_WEIGHT = 0.1
+
+
+@dataclasses.dataclass(frozen=True)
+class Inputs:
+    """A solve's checked inputs, in the skeleton's dtype.
+
+    Attributes:
+      effectors: static tuple of ``E`` joint ids.
+      targets: ``(..., E, 3)``.
+      rotations: ``(J, 4)`` (one start pose for the batch) or ``(..., J, 4)``, unit.
+      weights: ``(E,)`` positive effector weights.
+      orientations: ``(..., E, 4)`` unit quaternions, or ``None``.
+      orientation_weights: ``(E,)``, or ``None`` without orientations.
+      batch: the broadcast batch shape ``(...)``.
+    """
+
+    effectors: tuple
+    targets: jax.Array
+    rotations: jax.Array
+    weights: jax.Array
+    orientations: jax.Array | None
+    orientation_weights: jax.Array | None
+    batch: tuple
+
+
+def check_model(model, settings=None):
+    """``TypeError`` unless ``model`` is a ``Skeleton`` (and ``settings`` an IK settings object)."""
+    if not isinstance(model, Skeleton):
+        raise TypeError(f"the model must be a jaxsim.ik.Skeleton (jaxsim.ik.Chain builds one), got "
+                        f"{type(model).__name__}")
+    if settings is not None and not isinstance(settings, _Settings):
+        raise TypeError(f"settings must be jaxsim.ik.FABRIK, CCD or LevenbergMarquardt, got {settings!r}")
+
+
+def check_flags(**flags):
+    """Each keyword must be a bool (``None`` allowed: the default)."""
+    for name, flag in flags.items():
+        if flag is not None:
+            check_bool(name, flag)
+
+
+def check_start_rotations(rotations):
+    """Start rotations must be finite and non-zero (checked when concrete, i.e. outside ``jit``)."""
+    if is_concrete(rotations):
+        r = check_finite("rotations", rotations)
+        if np.any(np.linalg.norm(r, axis=-1) < 1e-6):
+            raise ValueError("rotations contain a zero quaternion; use (1, 0, 0, 0) for no rotation")
+
+
+def _orientations(dtype, orientations, orientation_weights, E):
+    if orientations is None:
+        if orientation_weights is not None:
+            raise ValueError("orientation_weights needs orientations")
+        return None, None
+    o = jnp.asarray(orientations, dtype)
+    if o.ndim == 1 and E == 1:
+        o = o[None]
+    if o.ndim < 2 or o.shape[-2:] != (E, 4):
+        raise ValueError(f"orientations must have shape (..., {E}, 4), one unit quaternion per effector, got {o.shape}")
+    if is_concrete(o):
+        norms = np.linalg.norm(check_finite("orientations", o).astype(np.float64), axis=-1)
+        off = np.abs(norms - 1.0) > 1e-4
+        if np.any(off):
+            raise ValueError(f"orientations must be unit quaternions; {int(np.sum(off))} have a norm off 1 by more "
+                             f"than 1e-4 (worst {norms.flat[np.argmax(np.abs(norms - 1))]!r})")
+    o = _quat.unit_quaternions(o)
+    if orientation_weights is None:
+        return o, jnp.full((E,), ORIENTATION_WEIGHT, dtype)
+    ow = jnp.asarray(orientation_weights, dtype)
+    if ow.shape != (E,):
+        raise ValueError(f"orientation_weights must have shape ({E},), got {ow.shape}")
+    if is_concrete(ow) and np.any(check_finite("orientation_weights", ow) < 0):
+        raise ValueError("orientation_weights must be >= 0")
+    return o, ow
+
+
+def check_inputs(skeleton: Skeleton, targets, rotations=None, effectors=None, weights=None, orientations=None,
+                 orientation_weights=None) -> Inputs:
+    """The checked :class:`Inputs` of a solve.
+
+    ``targets`` are ``(..., E, 3)``; with one effector a single ``(3,)`` target is read as
+    ``(1, 3)`` (and a single ``(4,)`` orientation as ``(1, 4)``).
+
+    Raises:
+      ValueError: on a wrong shape, non-finite targets or start rotations, a zero
+        quaternion, bad effectors, weights that are not positive, or orientations that
+        are not unit quaternions.
+    """
+    dtype = skeleton.offsets.dtype
+    effectors = check_effectors(skeleton, effectors)
+    E, J = len(effectors), skeleton.num_joints
+    targets = jnp.asarray(targets, dtype)
+    if targets.ndim == 1 and E == 1:
+        targets = targets[None]
+    if targets.ndim < 2 or targets.shape[-2:] != (E, 3):
+        raise ValueError(f"targets must have shape (..., {E}, 3) for {E} effector(s) {effectors}, got "
+                         f"{targets.shape}")
+    if is_concrete(targets):
+        check_finite("targets", targets)
+    rotations = skeleton.rest_rotations() if rotations is None else jnp.asarray(rotations, dtype)
+    if rotations.ndim < 2 or rotations.shape[-2:] != (J, 4):
+        raise ValueError(f"rotations must have shape (..., {J}, 4) for this skeleton, got {rotations.shape}")
+    check_start_rotations(rotations)
+    if weights is None:
+        weights = jnp.ones((E,), dtype)
+    else:
+        weights = jnp.asarray(weights, dtype)
+        if weights.shape != (E,):
+            raise ValueError(f"weights must have shape ({E},), one per effector, got {weights.shape}")
+        if is_concrete(weights):
+            wv = check_finite("weights", weights)
+            if np.any(wv <= 0):
+                raise ValueError(f"weights must be > 0, got min {wv.min()!r}")
+    o, ow = _orientations(dtype, orientations, orientation_weights, E)
+    batch = jnp.broadcast_shapes(targets.shape[:-2], rotations.shape[:-2], () if o is None else o.shape[:-2])
+    return Inputs(effectors=effectors, targets=targets, rotations=_quat.unit_quaternions(rotations), weights=weights,
+                  orientations=o, orientation_weights=ow, batch=tuple(batch))
