@@ -1,9 +1,16 @@
-"""Print the README's markdown tables from ``benchmarks/results/*.json``."""
+"""The performance guide's tables, generated from ``benchmarks/results/*.json``.
+
+``docs/performance.md`` and ``README.md`` hold each table between ``<!-- generated: NAME -->`` and
+``<!-- end generated -->``.  ``python benchmarks/_tables.py`` prints them;
+``--write`` rewrites those blocks in the guide from the JSON; ``--check`` exits 1 naming
+the blocks that differ from it (``tests/test_doc_tables.py`` runs the check).
+"""
 
 from __future__ import annotations
 
 import json
 import os
+import re
 import sys
 
 sys.path.insert(0, os.path.dirname(__file__))
@@ -20,7 +27,7 @@ def ik_table():
     out = ["| solver | setting | layout | M solves/s | run (ms) | compile (s) | mean sweeps | HLO fusions |",
            "|---|---|---|---|---|---|---|---|"]
     for r in d["rows"]:
-        if r["solver"].startswith("humanoid"):
+        if r["solver"].startswith(("humanoid", "hinge chain")):
             continue
         if r["solver"] == "ikpy":
             out.append(f"| ikpy | default | `inverse_kinematics`, one target | {r['solves_per_s'] / 1e6:.6f} | | | | |")
@@ -34,7 +41,14 @@ def ik_table():
     s = d["summary"]
     out += ["", f"FABRIK vs the numpy baseline: {s['fabrik_speedup_vs_numpy']:.1f}x; max |difference| to it on reachable "
             f"targets {s['max_abs_diff_vs_numpy_fabrik']:.1e}."]
-    hum = [r for r in d["rows"] if r["solver"].startswith("humanoid")]
+    t = s["targets"]
+    got = (s["fabrik_10_sweeps_solves_per_s"], s["ccd_10_sweeps_solves_per_s"], s["fabrik_speedup_vs_numpy"])
+    met = [g >= w for g, w in zip(got, (t["fabrik_10"], t["ccd_10"], t["vs_numpy"]))]
+    out += ["", f"Targets: {t['fabrik_10'] / 1e6:g} M solves/s for FABRIK at 10 sweeps, {t['ccd_10'] / 1e6:g} M/s for "
+            f"CCD, and {t['vs_numpy']:g}x the numpy baseline.  This run ({d['timestamp'][:10]}) measured "
+            f"{got[0] / 1e6:.2f} M/s ({'met' if met[0] else 'missed'}), {got[1] / 1e6:.2f} M/s "
+            f"({'met' if met[1] else 'missed'}) and {got[2]:.1f}x ({'met' if met[2] else 'missed'})."]
+    hum = [r for r in d["rows"] if r["solver"] in ("humanoid fabrik", "humanoid ccd")]
     if hum:
         out += ["", f"The humanoid, hands and ankles as effectors, {hum[0]['n']:,} float32 target sets (FK of random "
                 "poses), from the rest pose:", "",
@@ -89,8 +103,78 @@ def scaling_table():
     return "\n".join(out)
 
 
-if __name__ == "__main__":
-    which = sys.argv[1:] or ["ik", "stability", "cloth", "scaling"]
-    for w in which:
-        print({"ik": ik_table, "stability": stability_table, "cloth": cloth_table, "scaling": scaling_table}[w]())
+def headline_table():
+    """The README's headline numbers."""
+    ik, cl = load("ik_throughput"), load("cloth_step")
+    s = ik["summary"]
+
+    def step(scene, method, dtype="float64"):
+        return next(r for r in cl["rows"] if r["scene"] == scene and r["method"] == method and r.get("dtype", dtype) == dtype)
+
+    lab, big, scipy = (step("A lab 11x11", "cg converged default forcing"), step("B 128x128", "cg converged default forcing"),
+                       step("B 128x128", "scipy spsolve Newton (tol 1e-6)"))
+    stiff = step("C 32x32 k=1e+05", "cg converged default forcing two-level")
+    ikpy = f", {s['fabrik_speedup_vs_ikpy']:,.0f}× ikpy" if s.get("fabrik_speedup_vs_ikpy") else ""
+    rows = [("chain FABRIK, 10 sweeps, float32, batched", f"{s['fabrik_10_sweeps_solves_per_s'] / 1e6:.2f} M solves/s "
+             f"({s['fabrik_speedup_vs_numpy']:.0f}× a vectorised numpy FABRIK{ikpy})", "ik_throughput"),
+            ("chain CCD, 10 sweeps", f"{s['ccd_10_sweeps_solves_per_s'] / 1e6:.2f} M solves/s", "ik_throughput"),
+            ("humanoid (24 joints, 4 effectors) FABRIK, 10 sweeps",
+             f"{s['humanoid']['fabrik_10_sweeps']['solves_per_s']:,.0f} sets/s", "ik_throughput"),
+            ("lab cloth (11×11) implicit step, float64", f"{lab['ms_per_step']:.3f} ms", "cloth_step"),
+            (f"128×128-particle cloth implicit step, float64 (scipy sparse Newton: {scipy['ms_per_step'] / 1e3:.2f} s)",
+             f"{big['ms_per_step']:.2f} ms", "cloth_step"),
+            ("stiff 32×32-particle cloth (k = 1e5) implicit step",
+             f"{stiff['ms_per_step']:.1f} ms" + (", every timed step converged" if stiff["converged"] else
+                                                  ", not every timed step converged"), "cloth_step")]
+    return "\n".join(["| what | number | source |", "|---|---|---|"]
+                     + [f"| {a} | {b} | `{c}.json` ({load(c)['timestamp'][:10]}) |" for a, b, c in rows])
+
+
+TABLES = {"headline": headline_table, "ik": ik_table, "stability": stability_table, "cloth": cloth_table, "scaling": scaling_table}
+_ROOT = os.path.join(os.path.dirname(RESULTS), os.pardir)
+GUIDES = (os.path.join(_ROOT, "docs", "performance.md"), os.path.join(_ROOT, "README.md"))
+_BLOCK = re.compile(r"(<!-- generated: (\w+) -->\n)(.*?)(<!-- end generated -->)", re.S)
+
+
+def render(text: str) -> str:
+    """``text`` with every generated block replaced by its table from the JSON."""
+    return _BLOCK.sub(lambda m: m.group(1) + TABLES[m.group(2)]().rstrip() + "\n" + m.group(4), text)
+
+
+def blocks(path: str) -> list:
+    """Names of the generated blocks in ``path``."""
+    with open(path, encoding="utf-8") as f:
+        return [m.group(2) for m in _BLOCK.finditer(f.read())]
+
+
+def stale(paths=GUIDES) -> list:
+    """Names of the generated blocks in ``paths`` that differ from the JSON."""
+    out = []
+    for path in [paths] if isinstance(paths, str) else paths:
+        with open(path, encoding="utf-8") as f:
+            text = f.read()
+        out += [m.group(2) for m in _BLOCK.finditer(text) if m.group(3).rstrip() != TABLES[m.group(2)]().rstrip()]
+    return out
+
+
+def main(argv):
+    if "--check" in argv:
+        bad = stale()
+        print("stale generated tables: " + ", ".join(bad) if bad else "generated tables are up to date")
+        return 1 if bad else 0
+    if "--write" in argv:
+        for path in GUIDES:
+            with open(path, encoding="utf-8") as f:
+                text = f.read()
+            with open(path, "w", encoding="utf-8") as f:
+                f.write(render(text))
+            print(f"rewrote the generated tables in {os.path.normpath(path)}")
+        return 0
+    for w in [a for a in argv if not a.startswith("--")] or list(TABLES):
+        print(TABLES[w]())
         print()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

@@ -60,11 +60,13 @@ def test_track_under_jit_survives_a_nan_frame():
     (dict(tol=-1.0), "tol must be >= 0"),
     (dict(tol=np.inf), "tol must be finite"),
     (dict(trace="no"), "trace must be True or False"),
+    (dict(trace=None), "trace must be True or False"),
+    (dict(early_exit=1), "early_exit must be True or False"),
     (dict(solver="newton"), "solver must be one of"),
 ])
 def test_bad_solver_settings(kw, match):
     raises(match, ik.solve, ARM, TARGETS, **kw)
-    if "trace" not in kw:
+    if "trace" not in kw and "early_exit" not in kw:
         raises(match, ik.track, ARM, TARGETS, **kw)
 
 

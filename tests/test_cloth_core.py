@@ -95,11 +95,22 @@ def test_analytic_hessian_equals_autodiff(lab):
         l = np.linalg.norm(np.diff(np.asarray(x)[np.asarray(lab.springs)], axis=1)[:, 0], axis=-1)
         assert np.any(l < np.asarray(lab.rest_length)) and np.any(l > np.asarray(lab.rest_length))
         H_ad = jax.hessian(C.spring_energy, argnums=1)(lab, x).reshape(363, 363)
-        H_an, blocks = C.spring_hessian(lab, x)
+        H_an, blocks = C.reference.spring_hessian(lab, x)
         rel = np.max(np.abs(H_ad - H_an)) / np.max(np.abs(H_an))
         assert rel < 1e-9
-        A = C.element_blocks(lab, x, project_psd=False)
+        A = C.reference.element_blocks(lab, x, project_psd=False)
         np.testing.assert_allclose(A, blocks, rtol=1e-9, atol=1e-9 * np.abs(blocks).max())
+
+
+def test_cross_check_internals_moved_to_reference():
+    """The old names still work for one release, with a DeprecationWarning naming the new place."""
+    for name in ("spring_hessian", "element_blocks"):
+        with pytest.warns(DeprecationWarning, match=f"jaxsim.cloth.reference.{name}"):
+            old = getattr(C, name)
+        assert old is getattr(C.reference, name)
+        assert name not in C.__all__
+    with pytest.raises(AttributeError, match="no attribute 'spring_hessians'"):
+        C.spring_hessians  # noqa: B018
 
 
 def test_radial_blocks_equal_element_hessian():
@@ -160,9 +171,9 @@ def test_radial_gradient_and_scale_equal_autodiff_of_the_objective(scene):
 
 def test_projected_blocks_are_psd(lab):
     x = jnp.asarray(perturbed(lab, 0.15, 2))
-    A = C.element_blocks(lab, x, project_psd=True)
+    A = C.reference.element_blocks(lab, x, project_psd=True)
     assert np.min(np.linalg.eigvalsh(np.asarray(A))) > -1e-9
-    A_raw = C.element_blocks(lab, x, project_psd=False)
+    A_raw = C.reference.element_blocks(lab, x, project_psd=False)
     assert np.min(np.linalg.eigvalsh(np.asarray(A_raw))) < -1.0  # compressed springs were indefinite
 
 

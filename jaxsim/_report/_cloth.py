@@ -107,7 +107,7 @@ def pareto(doc: Doc) -> None:
 def _omega_max_sq(c):
     """Largest eigenvalue of ``M^{-1} K`` at rest over free particles, for unit stiffness."""
     c1 = C.replace(c, stiffness=1.0)
-    H, _ = C.spring_hessian(c1, c1.rest)
+    H, _ = C.reference.spring_hessian(c1, c1.rest)
     free = np.repeat(~np.asarray(c.pinned), 3)
     m = np.repeat(np.asarray(c.mass), 3)
     Hf = np.asarray(H)[np.ix_(free, free)] / np.sqrt(np.outer(m[free], m[free]))

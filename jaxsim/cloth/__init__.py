@@ -4,7 +4,8 @@ from ._batch import batch_rollout, stack_scenes
 from ._colliders import Capsule, Plane, Sphere
 from ._contact import FRICTION_EPS_V
 from ._diagnostics import EnergyReport, energy_report
-from ._energy import element_blocks, energy, forces, kinetic_energy, spring_energy, spring_hessian, total_energy
+from . import reference
+from ._energy import energy, forces, kinetic_energy, spring_energy, total_energy
 from ._mesh import disk, from_mesh, grid_triangles, mesh_springs
 from ._obj import TABLECLOTH_OBJ, read_obj, write_obj, write_obj_sequence
 from ._integrators import AUTO_DENSE_MAX_PARTICLES, ExplicitEuler, ImplicitEuler
@@ -16,5 +17,18 @@ __all__ = [
     "Cloth", "State", "StepInfo", "NewtonTrace", "HESSIANS", "EnergyReport", "energy_report", "ExplicitEuler", "ImplicitEuler", "AUTO_DENSE_MAX_PARTICLES",
     "grid", "grid_springs", "lab_cloth", "pin_mask", "replace", "energy", "spring_energy", "forces",
     "Plane", "Sphere", "Capsule", "FRICTION_EPS_V", "from_mesh", "mesh_springs", "grid_triangles", "disk",
-    "read_obj", "write_obj", "write_obj_sequence", "TABLECLOTH_OBJ", "kinetic_energy", "total_energy", "element_blocks", "spring_hessian", "step", "rollout", "batch_rollout", "stack_scenes",
+    "read_obj", "write_obj", "write_obj_sequence", "TABLECLOTH_OBJ", "kinetic_energy", "total_energy", "reference", "step", "rollout", "batch_rollout", "stack_scenes",
 ]
+
+#: Names that moved to :mod:`jaxsim.cloth.reference`; kept here for one release, with a warning.
+_MOVED = {"spring_hessian": "reference", "element_blocks": "reference"}
+
+
+def __getattr__(name):
+    if name in _MOVED:
+        import warnings
+
+        warnings.warn(f"jaxsim.cloth.{name} moved to jaxsim.cloth.reference.{name} (cross-check internals); "
+                      f"the old name goes in the next release", DeprecationWarning, stacklevel=2)
+        return getattr(reference, name)
+    raise AttributeError(f"module 'jaxsim.cloth' has no attribute {name!r}")

@@ -50,10 +50,10 @@ def check_model(model, settings=None):
         raise TypeError(f"settings must be jaxsim.ik.FABRIK, CCD or LevenbergMarquardt, got {settings!r}")
 
 
-def check_flags(**flags):
-    """Each keyword must be a bool (``None`` allowed: the default)."""
+def check_flags(optional=(), **flags):
+    """Each keyword must be a bool; those named in ``optional`` may also be ``None`` (their default)."""
     for name, flag in flags.items():
-        if flag is not None:
+        if not (flag is None and name in optional):
             check_bool(name, flag)
 
 

@@ -25,7 +25,7 @@ from ._loop import run_plan
 from ._pose import OrientTargets, batched, bone_lengths, effector_sq_errors, finish, reachable_flags
 from ._result import IKResult
 from ._settings import CCD, FABRIK
-from ._symmetry import break_symmetry_chain, break_symmetry_tree
+from ._symmetry import break_symmetry_chain, break_symmetry_stacked, break_symmetry_tree
 
 #: Per settings type, the module that lays out its sweeps (``chain_plan``, ``tree_plan``).
 PLANS = {FABRIK: _fabrik, CCD: _ccd}
@@ -115,8 +115,8 @@ def run_chain(offsets, target, local0, tol, *, alg, max_iters, unroll, trace, ea
         P0, G0 = fk_joints(offsets, L0, B, unroll=False)
         err0 = _quat.safe_norm(_quat.sub(_quat.unstack(P0[J - 1]), tgt))
         done0 = err0 <= tol
-        bent = break_symmetry_chain(*(_joints.split(x, True) for x in (L0, P0, G0)), tgt, reach, done0)
-        L0, P0, G0 = (_joints.stack(x) for x in bent)
+        L0 = break_symmetry_stacked(L0, P0, G0, tgt, reach, done0, B)
+        P0, G0 = fk_joints(offsets, L0, B, unroll=False)
     start = ChainStart(offsets=offsets, target=tgt, root=root, lengths=lengths, reachable=reachable, local=L0,
                        positions=P0, frames=G0, err=jnp.broadcast_to(err0, B), done=jnp.broadcast_to(done0, B),
                        batch=B, unroll=unroll)

@@ -1,24 +1,12 @@
-"""Joint limits: the static limit specs, their projection and their violation.
+"""Joint limits (Aristidou & Lasenby 2011, §4.1): specs, their projection and violation.
 
-A joint's limit constrains its local rotation ``L`` (parent frame to joint frame, the
-rotation that turns the joint's child bones).  Three kinds, after the FABRIK paper's
-rotational and orientational limits (Aristidou & Lasenby 2011, §4.1):
-
-* :class:`Hinge` ``(axis, lo, hi)``: ``L`` is a rotation about ``axis`` (parent frame)
-  by an angle in ``[lo, hi]``.
-* :class:`SwingTwist` ``(swing, twist, axis)``: ``L = S T`` with ``T`` a twist about
-  ``axis`` (the bone's rest direction by default) by an angle in ``twist = (lo, hi)``
-  and ``S`` a swing about an axis perpendicular to it by at most ``swing``: the bone
-  stays in a cone of half-angle ``swing`` about its rest direction.
-* :class:`Fixed`: ``L`` is the identity.
-
-``None`` (or :class:`Free`) leaves a joint free.  Angles are radians.  The specs are
-small frozen, hashable objects; the solvers compile per pattern of kinds, and the
-numbers travel as data (:class:`LimitTable`), so new ranges do not recompile.
-
-Projection (:func:`project`) clamps the twist angle and the swing angle separately; the
-result always lies in the set (it is the nearest point for a hinge, and for a swing-twist
-limit whose violated part is only the swing or only the twist).
+A limit constrains a joint's local rotation ``L``: :class:`Hinge` (a rotation about an axis
+by an angle in ``[lo, hi]``), :class:`SwingTwist` (``L = S T``: a twist about the bone's
+axis in a range, and a swing of at most a cone angle), :class:`Fixed` (the identity), or
+:class:`Free`/``None``.  Angles are radians.  Specs are frozen and hashable (the solvers
+compile per pattern of kinds); the numbers travel as data (:class:`LimitTable`).
+:func:`project` clamps twist and swing separately: the result is always in the set (the
+nearest point for a hinge, or where only one part is violated).
 """
 
 from __future__ import annotations

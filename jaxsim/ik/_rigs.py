@@ -1,62 +1,9 @@
 """Built-in rigs, all of them ``Skeleton``s: chains (the lab's arm, straight chains) and a humanoid.
 
-The humanoid has 24 joints, in metres, y up, facing +z.
-
-Proportions are those of an adult about 1.75 m tall.  The rest pose is a T-pose: arms
-straight out along ±x, legs straight down, feet pointing forward (+z).  ``l_`` is the
-character's left side, at +x.
-
-==  ============  ========  ====================  ========================
-id  name          parent    offset (m)            at rest (world, m)
-==  ============  ========  ====================  ========================
-0   pelvis        (root)    (0, 1.00, 0)          (0, 1.00, 0)
-1   spine1        pelvis    (0, 0.10, 0)          (0, 1.10, 0)
-2   spine2        spine1    (0, 0.12, 0)          (0, 1.22, 0)
-3   spine3        spine2    (0, 0.12, 0)          (0, 1.34, 0)
-4   neck          spine3    (0, 0.14, 0)          (0, 1.48, 0)
-5   head          neck      (0, 0.12, 0)          (0, 1.60, 0)
-6   l_clavicle    spine3    (0.03, 0.08, 0)       (0.03, 1.42, 0)
-7   l_shoulder    l_clav.   (0.15, 0.02, 0)       (0.18, 1.44, 0)
-8   l_elbow       l_should. (0.28, 0, 0)          (0.46, 1.44, 0)
-9   l_wrist       l_elbow   (0.26, 0, 0)          (0.72, 1.44, 0)
-10  l_hand        l_wrist   (0.08, 0, 0)          (0.80, 1.44, 0)
-11  r_clavicle    spine3    (-0.03, 0.08, 0)      mirror of 6
-12  r_shoulder    r_clav.   (-0.15, 0.02, 0)      mirror of 7
-13  r_elbow       r_should. (-0.28, 0, 0)         mirror of 8
-14  r_wrist       r_elbow   (-0.26, 0, 0)         mirror of 9
-15  r_hand        r_wrist   (-0.08, 0, 0)         mirror of 10
-16  l_hip         pelvis    (0.09, -0.06, 0)      (0.09, 0.94, 0)
-17  l_knee        l_hip     (0, -0.43, 0)         (0.09, 0.51, 0)
-18  l_ankle       l_knee    (0, -0.42, 0)         (0.09, 0.09, 0)
-19  l_toe         l_ankle   (0, -0.07, 0.13)      (0.09, 0.02, 0.13)
-20  r_hip         pelvis    (-0.09, -0.06, 0)     mirror of 16
-21  r_knee        r_hip     (0, -0.43, 0)         mirror of 17
-22  r_ankle       r_knee    (0, -0.42, 0)         mirror of 18
-23  r_toe         r_ankle   (0, -0.07, 0.13)      mirror of 19
-==  ============  ========  ====================  ========================
-
-Joint limits (``humanoid(limits=True)``, the default; angles in degrees).  A hinge turns
-about its axis in the parent frame; a swing-twist cone is about the bone's rest direction
-(the joint's first child bone), with the twist about that direction.
-
-============  ========================================================================
-joint         limit
-============  ========================================================================
-pelvis        free (the body's global orientation)
-spine1..3     swing-twist: cone 25, twist ±20 (each)
-neck          swing-twist: cone 45, twist ±60
-head          swing-twist: cone 40, twist ±45
-clavicle      swing-twist: cone 20, twist ±10
-shoulder      swing-twist: cone 100, twist ±90 (arm down, up, forward or back from the T-pose)
-elbow         hinge 0 to 150 about -y (left) / +y (right): the forearm folds forward (+z) only
-wrist         swing-twist: cone 70, twist ±80
-hand          fixed (the hand frame is the wrist's: an orientation target on a hand
-              is met by the wrist and the arm)
-hip           swing-twist: cone 100, twist ±45
-knee          hinge 0 to 150 about +x: the shin folds backward (-z) only
-ankle         swing-twist: cone 40, twist ±20
-toe           fixed
-============  ========================================================================
+The humanoid: 24 joints, metres, y up, facing +z, an adult about 1.75 m tall in a T-pose
+(``l_`` is the character's left, at +x).  Its joints, offsets, rest positions and limits
+are tabled in ``docs/ik.md`` ("The built-in humanoid"); ``_rows`` and ``_limit`` below are
+the definition.
 """
 
 from __future__ import annotations

@@ -52,7 +52,8 @@ def solve_ik(settings, model, targets, *, rotations=None, effectors=None, weight
              sharded=None) -> IKResult:
     """Batched IK over any leading shape of ``targets (..., E, 3)``; see :func:`jaxsim.ik.solve`."""
     check_model(model, settings)
-    check_flags(trace=trace, unroll=unroll, early_exit=early_exit, implicit_diff=implicit_diff, sharded=sharded)
+    check_flags(("unroll", "sharded"), trace=trace, unroll=unroll, early_exit=early_exit, implicit_diff=implicit_diff,
+                sharded=sharded)
     if early_exit and not implicit_diff and in_reverse_mode(model, targets, rotations, orientations, weights):
         raise ValueError("early_exit=True runs the sweeps in a lax.while_loop, which JAX differentiates in forward "
                          "mode only (jax.jvp, jax.jacfwd); for jax.grad use early_exit=False (the default scan), or "

@@ -140,7 +140,7 @@ def track(model, targets, *, solver="fabrik", rotations=None, effectors=None, we
     """
     settings = resolve_settings(solver, max_iters, tol)
     check_model(model, settings)
-    check_flags(unroll=unroll)
+    check_flags(("unroll",), unroll=unroll)
     inp = check_inputs(model, targets, rotations, effectors, weights)
     J, dtype = model.num_joints, model.offsets.dtype
     if inp.targets.ndim != 3:
