@@ -17,6 +17,7 @@ import numpy as np
 
 from .._dataclass import pytree_dataclass
 from . import _joints, _quat
+from ._skeleton import chain_parents
 
 
 @pytree_dataclass
@@ -94,7 +95,7 @@ def joint_positions(parents, offsets, local):
     faster than the unrolled tree's), any other tree through :func:`fk_tree`.
     """
     J = len(parents)
-    if parents == (-1,) + tuple(range(J - 1)):
+    if parents == chain_parents(J):
         return fk_joints(offsets, local, (), unroll=False)[0]
     P, _ = fk_tree(parents, offsets, [_quat.unstack(local[i]) for i in range(J)])
     return _quat.stack([_quat.stack(p) for p in P])
