@@ -39,12 +39,12 @@ T, WARM = 10, 30
 
 def scene(name, n, k, dtype):
     if name == "A":
-        c, dt, pc = C.lab_cloth(), 1 / 60, "jacobi"
+        c, dt, pc = C.lab_cloth(), 1 / 60, C.Jacobi()
     elif name == "B":
-        c, dt, pc = C.grid(n - 1, 0.2), 1 / 60, "jacobi"
+        c, dt, pc = C.grid(n - 1, 0.2), 1 / 60, C.Jacobi()
     else:
-        c, dt, pc = C.grid(n - 1, 0.2, mass=1.0 / n**2, stiffness=k, gravity=9.8), 1 / 30, "two_level"
-    w, _ = C.rollout(c, C.State.at_rest(c), dt, WARM, C.ImplicitEuler(solver="cg", preconditioner=pc, tol=1e-8, cg_tol=1e-10))
+        c, dt, pc = C.grid(n - 1, 0.2, mass=1.0 / n**2, stiffness=k, gravity=9.8), 1 / 30, C.TwoLevel()
+    w, _ = C.rollout(c, C.State.at_rest(c), dt, WARM, C.ImplicitEuler(linear_solver=C.CG(pc, tol=1e-10), tol=1e-8))
     s0 = C.State(w.x[-1].astype(dtype), w.v[-1].astype(dtype))
     c = jax.tree_util.tree_map(lambda a: a.astype(dtype) if jnp.issubdtype(a.dtype, jnp.floating) else a, c)
     return c, s0, dt, pc
@@ -56,7 +56,7 @@ def run(name, n, k, dtype, reps):
     for i, on in enumerate((False, True)):
         _fusion.ENABLED = on
         # a distinct (equal-effect) setting per variant, so each is traced afresh
-        integ = C.ImplicitEuler(solver="cg", preconditioner=pc, cg_max_iters=500 + i)
+        integ = C.ImplicitEuler(linear_solver=C.CG(pc, max_iters=500 + i))
         f = jax.jit(lambda s, integ=integ: C.rollout(c, s, dt, T, integ))
         t0 = time.perf_counter()
         jax.block_until_ready(f(s0))

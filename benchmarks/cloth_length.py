@@ -40,7 +40,7 @@ SHORT, LONG, WARM = 10, 40, 30
 
 
 def run(name, c, dt, dtype, reps):
-    integ = C.ImplicitEuler(solver="cg")
+    integ = C.ImplicitEuler(linear_solver=C.CG())
     c = jax.tree_util.tree_map(lambda a: a.astype(dtype) if jnp.issubdtype(a.dtype, jnp.floating) else a, c)
     w, _ = C.rollout(c, C.State.at_rest(c), dt, WARM - SHORT, integ)
     before = C.rollout(c, C.State(w.x[-1], w.v[-1]), dt, SHORT, integ)  # the chunk before s0

@@ -2,9 +2,9 @@
 
 The stiff scenes C also run CG with the two-level preconditioner (``_coarse``); dense
 steps run on A and B 32x32 only.  CG rows use a fixed
-tolerance ``cg_tol`` (``cg_forcing=0``), and the "default forcing" rows the default
-inexact-Newton forcing term (``cg_forcing=1e-2``, ``cg_tol=1e-6``: what
-``ImplicitEuler(solver="cg")`` does); ``benchmarks/cloth_stiff.py`` compares the two.
+tolerance ``CG.tol`` (``CG(forcing=0)``), and the "default forcing" rows the default
+inexact-Newton forcing term (``forcing=1e-2``, ``tol=1e-6``: what
+``ImplicitEuler(linear_solver=CG())`` does); ``benchmarks/cloth_stiff.py`` compares the two.
 
 Scenes: A the lab cloth; B lab-like grids 32x32, 64x64, 128x128 particles (m=1, k=100,
 spacing 0.2, d=0.2, g=0.3, dt=1/60); C stiff grids 32x32, 64x64 with total mass 1,
@@ -58,6 +58,8 @@ from _common import time_call, write  # noqa: E402
 
 import jaxsim  # noqa: E402
 from jaxsim import cloth as C  # noqa: E402
+
+PRE = {"jacobi": C.Jacobi(), "two_level": C.TwoLevel()}
 
 
 def scenes(quick):
@@ -128,7 +130,7 @@ def contact_case(tag, mass, k, dt, n=32, steps=10):
     base = C.grid(n - 1, span / (n - 1), origin=(-span / 2, 1.0, -span / 2), mass=mass, stiffness=k,
                   gravity=9.8, pins=[], dtype=np.float64)
     draped = C.replace(base, colliders=(sphere,))
-    integ = C.ImplicitEuler(solver="cg")
+    integ = C.ImplicitEuler(linear_solver=C.CG())
     warm, _ = C.rollout(draped, C.State.at_rest(draped), dt, 30, integ)
     s0 = C.State(warm.x[-1], warm.v[-1])
     rows = []
@@ -171,12 +173,12 @@ def main():
         stiff = name.startswith("C")
         big_stiff = stiff and N > 32 * 32
         n_scene = 2 if big_stiff else 5 if stiff else 10
-        pc = "two_level" if stiff else "jacobi"
+        pre = C.TwoLevel() if stiff else C.Jacobi()
         warm, _ = C.rollout(scene, C.State.at_rest(scene), dt, 10 if big_stiff else 30,
-                            C.ImplicitEuler(solver="cg", tol=1e-8, cg_tol=1e-10, preconditioner=pc))
+                            C.ImplicitEuler(linear_solver=C.CG(pre, tol=1e-10), tol=1e-8))
         s0 = C.State(warm.x[-1], warm.v[-1])
-        ref, _ = C.step(scene, s0, dt, C.ImplicitEuler(solver="cg", tol=1e-12, newton_iters=50, cg_tol=1e-13,
-                                                       cg_max_iters=5000, preconditioner=pc))
+        ref, _ = C.step(scene, s0, dt, C.ImplicitEuler(linear_solver=C.CG(pre, tol=1e-13, max_iters=5000), tol=1e-12,
+                                                       newton_iters=50))
         ref_x = np.asarray(ref.x)
         t0 = time.perf_counter()
         x_sp, it_sp = scipy_newton(scene, np.asarray(s0.x), np.asarray(s0.v), dt, 1e-6)
@@ -187,21 +189,19 @@ def main():
         print(f"{name:22s} {sp_row['method']:34s} {sp_row['ms_per_step']:9.3f} ms  err {sp_row['error_vs_ref']:.1e}", flush=True)
         settings = []
         if N <= 32 * 32 and not stiff:  # dense on C 32x32 took 5.7-5.9 s per step (an earlier run)
-            settings.append(("dense converged", C.ImplicitEuler(solver="dense")))
+            settings.append(("dense converged", C.ImplicitEuler(linear_solver=C.Cholesky())))
             if N < 32 * 32:
-                settings.append(("dense one-Newton", C.ImplicitEuler(solver="dense", newton_iters=1, line_search=False,
-                                                                     extrapolate=False)))
+                settings.append(("dense one-Newton", C.ImplicitEuler(linear_solver=C.Cholesky(), newton_iters=1, line_search=False, extrapolate=False)))
         pcs = ("two_level",) if big_stiff else ("jacobi", "two_level") if stiff else ("jacobi",)
         for pc in pcs:
             for ct in ((1e-2, 1e-6) if N <= 64 * 64 and not (stiff and pc == "jacobi") else (1e-6,)):
                 settings.append((f"cg converged cg_tol={ct:.0e}" + (" two-level" if pc != "jacobi" else ""),
-                                 C.ImplicitEuler(solver="cg", cg_tol=ct, preconditioner=pc, cg_forcing=0.0)))
+                                 C.ImplicitEuler(linear_solver=C.CG(PRE[pc], tol=ct, forcing=0.0))))
             settings.append(("cg converged default forcing" + (" two-level" if pc != "jacobi" else ""),
-                             C.ImplicitEuler(solver="cg", preconditioner=pc)))
+                             C.ImplicitEuler(linear_solver=C.CG(PRE[pc]))))
         if not stiff:  # the default's start against the constant-acceleration one alone, same run
-            settings.append(("cg converged linear start", C.ImplicitEuler(solver="cg", extrapolate=1)))
-        settings.append(("cg one-Newton cg_tol=1e-6", C.ImplicitEuler(solver="cg", newton_iters=1, line_search=False, cg_tol=1e-6,
-                                                                       extrapolate=False)))  # the lab's linearised step
+            settings.append(("cg converged linear start", C.ImplicitEuler(linear_solver=C.CG(), extrapolate=1)))
+        settings.append(("cg one-Newton cg_tol=1e-6", C.ImplicitEuler(linear_solver=C.CG(tol=1e-6), newton_iters=1, line_search=False, extrapolate=False)))  # the lab's linearised step
         for sub in ((10, 1000) if N <= 32 * 32 else (100,) if N > 64 * 64 else ()):
             settings.append((f"explicit substeps={sub}", C.ExplicitEuler(substeps=sub)))
         for label, integ in settings:

@@ -41,7 +41,8 @@ def run(n, k, dtype, projection, preconditioner, forcing=1e-2, scene="C"):
         c = C.grid(n - 1, 0.2, stiffness=k, dtype=dtype)
         dt = 1 / 60
     s0 = C.State.at_rest(c)
-    integ = C.ImplicitEuler(solver="cg", project_psd=projection, preconditioner=preconditioner, cg_forcing=forcing)
+    pre = C.TwoLevel() if preconditioner == "two_level" else C.Jacobi()
+    integ = C.ImplicitEuler(linear_solver=C.CG(pre, forcing=forcing), project_psd=projection)
     f = jax.jit(lambda s: C.rollout(c, s, dt, STEPS, integ))
     t = time_call(f, s0, repeats=1)
     _, inf = f(s0)

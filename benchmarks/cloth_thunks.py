@@ -9,7 +9,7 @@ summed over the kernels' own spans and inflated by the tracing itself, so compar
 and counts, not milliseconds, with the untraced benchmarks.
 
 Scenes: B 32x32 (block Jacobi) and C 32x32 k = 1e3 (two-level), float64, 30 steps into the
-motion, ``ImplicitEuler(solver="cg", tol=1e-6, cg_tol=1e-6, cg_forcing=0)``.
+motion, ``ImplicitEuler(linear_solver=CG(tol=1e-6, forcing=0), tol=1e-6)``.
 
 Run: ``python benchmarks/cloth_thunks.py``; writes ``benchmarks/results/cloth_thunks.json``.
 """
@@ -67,7 +67,7 @@ def kernel_spans(fn, *args):
 
 def case(label, scene, dt, integ):
     warm, _ = C.rollout(scene, C.State.at_rest(scene), dt, 30,
-                        C.ImplicitEuler(solver="cg", tol=1e-8, cg_tol=1e-10, preconditioner=integ.preconditioner))
+                        C.ImplicitEuler(linear_solver=C.CG(integ.linear(scene.num_particles).preconditioner, tol=1e-10), tol=1e-8))
     s0 = C.State(warm.x[-1], warm.v[-1])
     fn = jax.jit(lambda s: C.step(scene, s, dt, integ))
     _, info = fn(s0)
@@ -94,9 +94,9 @@ def case(label, scene, dt, integ):
 def main():
     jaxsim.retain_host_memory()  # benchmarks/host_memory.py: what this changes
     E = C.ImplicitEuler
-    out = [case("B 32x32", C.grid(31, 0.2), 1 / 60, E(solver="cg", tol=1e-6, cg_tol=1e-6, cg_forcing=0.0)),
+    out = [case("B 32x32", C.grid(31, 0.2), 1 / 60, E(linear_solver=C.CG(tol=1e-6, forcing=0.0), tol=1e-6)),
            case("C 32x32 k=1e3 two-level", C.grid(31, 0.2, mass=1.0 / 1024, stiffness=1e3, gravity=9.8), 1 / 30,
-                E(solver="cg", tol=1e-6, cg_tol=1e-6, cg_forcing=0.0, preconditioner="two_level"))]
+                E(linear_solver=C.CG(C.TwoLevel(), tol=1e-6, forcing=0.0), tol=1e-6))]
     write("cloth_thunks", {"reps": REPS, "rows": out})
 
 

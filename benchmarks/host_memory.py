@@ -50,7 +50,7 @@ def build(case):
     if case.startswith("cloth"):
         n = int(case.split()[2].split("x")[0])
         scene = C.grid(n - 1, 0.2, dtype=np.float64 if "float64" in case else np.float32)
-        integ = C.ImplicitEuler(solver="cg")
+        integ = C.ImplicitEuler(linear_solver=C.CG())
         warm, _ = C.rollout(scene, C.State.at_rest(scene), 1 / 60, 30, integ)
         return jax.jit(lambda s: C.step(scene, s, 1 / 60, integ)), (C.State(warm.x[-1], warm.v[-1]),)
     from ik_throughput import random_targets  # the throughput benchmark's chain and targets

@@ -6,17 +6,44 @@ dtype of the scene it is given, so both precisions run in one session.  The floa
 """
 
 import os
+import shutil
+import tempfile
 
 os.environ.setdefault("MPLBACKEND", "Agg")
-# No persistent compilation cache in this process or in the subprocesses and notebook
-# kernels it starts: every test run starts cold, as on a fresh machine.
-os.environ.pop("JAX_COMPILATION_CACHE_DIR", None)
+#: One persistent compilation cache per test run, made empty by the controlling process
+#: and removed when it ends: the xdist workers and the subprocesses and notebook kernels
+#: they start inherit it, so a program compiled once in the run (by another worker, by a
+#: module before the per-module drop below, or by a CLI subprocess) is loaded, not
+#: compiled again.  Every run starts cold, as on a fresh machine; the user's own cache
+#: (``~/.cache/jaxsim``) is never read.
+if "PYTEST_XDIST_WORKER" not in os.environ:
+    RUN_CACHE = tempfile.mkdtemp(prefix="jaxsim-tests-jax-cache-")
+    os.environ["JAX_COMPILATION_CACHE_DIR"] = RUN_CACHE
+    os.environ["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] = "0.5"
+else:
+    RUN_CACHE = None
+
+#: This process's XLA:CPU compiles with LLVM at -O0: the HLO (every fusion and rewrite,
+#: so every result the tests check) is the one users get, only its machine code is less
+#: optimised, and the suite's small programs are compile-bound (the lab cloth's step
+#: compiles 25-45% faster, docs/notebook.md).  The flag is read once, at the first
+#: compile; the environment is restored after it, so the CLI, notebook and sharding
+#: subprocesses (whose work is long runs, not compiles) get the defaults.
+_XLA_FLAGS = os.environ.get("XLA_FLAGS")
+os.environ["XLA_FLAGS"] = ((_XLA_FLAGS or "") + " --xla_backend_optimization_level=0").strip()
 
 import jax  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
+jax.jit(lambda x: x + 1)(0).block_until_ready()
+if _XLA_FLAGS is None:
+    del os.environ["XLA_FLAGS"]
+else:
+    os.environ["XLA_FLAGS"] = _XLA_FLAGS
 jax.config.update("jax_enable_x64", True)
+jax.config.update("jax_compilation_cache_dir", os.environ["JAX_COMPILATION_CACHE_DIR"])
+jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
 
 #: Each live compiled XLA:CPU program holds about six memory mappings, and Linux caps a
 #: process at ``vm.max_map_count`` (65530 by default): a test worker that keeps every
@@ -63,6 +90,11 @@ def pytest_collection_modifyitems(items):
     rank = {name: k for k, name in enumerate(SLOW_FIRST)}
     items.sort(key=lambda it: rank.get(os.path.basename(str(it.fspath)), len(SLOW_FIRST)))
 
+
+
+def pytest_unconfigure(config):
+    if RUN_CACHE is not None:
+        shutil.rmtree(RUN_CACHE, ignore_errors=True)
 
 
 @pytest.fixture(params=[np.float32, np.float64], ids=["f32", "f64"])

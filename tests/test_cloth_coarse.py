@@ -108,9 +108,9 @@ def stiff_steps():
     c = stiff_grid(11)
     s = C.State.at_rest(c)
     out = {}
-    for name, integ in (("jacobi", C.ImplicitEuler(solver="cg")),
-                        ("two_level", C.ImplicitEuler(solver="cg", preconditioner="two_level")),
-                        ("fixed cg_tol", C.ImplicitEuler(solver="cg", cg_forcing=0.0))):
+    for name, integ in (("jacobi", C.ImplicitEuler(linear_solver=C.CG())),
+                        ("two_level", C.ImplicitEuler(linear_solver=C.CG(C.TwoLevel()))),
+                        ("fixed cg_tol", C.ImplicitEuler(linear_solver=C.CG(forcing=0.0)))):
         out[name] = jax.jit(lambda s, integ=integ: C.rollout(c, s, 1 / 30, 3, integ))(s)
     return out
 
@@ -139,7 +139,7 @@ def test_scene_c_k1e5_hard_step_converges_within_the_default_cap():
     needed 65 iterations (the default cap is 20); with the shifted exact Hessian first
     (``_newton.SHIFT``) every one of these steps converges within the cap."""
     c = stiff_grid(31, k=1e5)
-    integ = C.ImplicitEuler(solver="cg", preconditioner="two_level")
+    integ = C.ImplicitEuler(linear_solver=C.CG(C.TwoLevel()))
     _, info = jax.jit(lambda s: C.rollout(c, s, 1 / 30, 5, integ))(C.State.at_rest(c))
     assert np.all(np.asarray(info.converged)), np.asarray(info.newton_iters)
     assert np.all(np.asarray(info.newton_iters) < integ.newton_iters)
@@ -149,19 +149,19 @@ def test_scene_c_k1e5_hard_step_converges_within_the_default_cap():
 def test_single_newton_iteration_solves_to_cg_tol():
     c = stiff_grid(5)
     s = C.State.at_rest(c)
-    one = [C.step(c, s, 1 / 30, C.ImplicitEuler(solver="cg", newton_iters=1, line_search=False, cg_forcing=f))
+    one = [C.step(c, s, 1 / 30, C.ImplicitEuler(linear_solver=C.CG(forcing=f), newton_iters=1, line_search=False))
            for f in (0.0, 0.5)]
     np.testing.assert_array_equal(one[0][0].x, one[1][0].x)
     assert int(one[0][1].cg_iters) == int(one[1][1].cg_iters)
 
 
 def test_preconditioner_setting_is_checked():
-    with pytest.raises(ValueError, match="preconditioner"):
-        C.ImplicitEuler(preconditioner="multigrid")
+    with pytest.raises(ValueError, match="preconditioner must be cloth.Jacobi"):
+        C.CG(preconditioner="multigrid")
     for bad in (1.0, -0.1, "0.1"):
-        with pytest.raises(ValueError, match="cg_forcing"):
-            C.ImplicitEuler(cg_forcing=bad)
-    assert hash(C.ImplicitEuler(preconditioner="two_level")) != hash(C.ImplicitEuler())
+        with pytest.raises(ValueError, match="CG forcing"):
+            C.CG(forcing=bad)
+    assert hash(C.ImplicitEuler(linear_solver=C.Auto(C.CG(C.TwoLevel())))) != hash(C.ImplicitEuler())
 
 
 @pytest.mark.slow
@@ -169,7 +169,7 @@ def test_batched_scenes_carry_aggregates():
     a, b = stiff_grid(5), stiff_grid(5, k=2e3)
     batch = C.stack_scenes([a, b])
     assert batch.aggregates.shape == (2, a.num_particles) and batch.num_aggregates == a.num_aggregates
-    integ = C.ImplicitEuler(solver="cg", preconditioner="two_level")
+    integ = C.ImplicitEuler(linear_solver=C.CG(C.TwoLevel()))
     states, info = C.batch_rollout(batch, C.State.at_rest(a), 1 / 30, 2, integ)
     assert np.all(np.asarray(info.converged))
     alone, _ = C.rollout(b, C.State.at_rest(b), 1 / 30, 2, integ)
@@ -187,7 +187,7 @@ def test_newton_trace_logs_every_iteration_and_changes_nothing():
     s0 = C.State.at_rest(c)
     out = {}
     for trace in (False, True):
-        integ = C.ImplicitEuler(solver="cg", trace=trace)
+        integ = C.ImplicitEuler(linear_solver=C.CG(), trace=trace)
         out[trace] = jax.jit(lambda s, integ=integ: C.rollout(c, s, 1 / 30, 2, integ))(s0)
     (x0, i0), (x1, i1) = out[False], out[True]
     assert i0.trace is None
@@ -205,11 +205,11 @@ def test_newton_trace_logs_every_iteration_and_changes_nothing():
         assert float(t.rel[k, n - 1]) == float(i1.rel_grad[k])
         assert float(t.alpha[k, n - 1]) == float(i1.step_size[k])
     assert set(np.asarray(t.hessian[0, : int(i1.newton_iters[0])]).tolist()) == {0, 1}
-    clamped = C.ImplicitEuler(solver="cg", project_psd=True, trace=True)
+    clamped = C.ImplicitEuler(linear_solver=C.CG(), project_psd=True, trace=True)
     _, info = C.step(c, s0, 1 / 30, clamped)
     assert set(np.asarray(info.trace.hessian[: int(info.newton_iters)]).tolist()) == {0}
 
     def updates(integ):
         return str(jax.make_jaxpr(lambda s: C.step(c, s, 1 / 30, integ))(s0)).count("dynamic_update_slice")
 
-    assert updates(C.ImplicitEuler(solver="cg")) == 0 < updates(C.ImplicitEuler(solver="cg", trace=True))
+    assert updates(C.ImplicitEuler(linear_solver=C.CG())) == 0 < updates(C.ImplicitEuler(linear_solver=C.CG(), trace=True))

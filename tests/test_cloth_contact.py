@@ -193,7 +193,7 @@ def test_friction_holds_below_atan_mu_and_slides_above(theta):
 # ---- what the compiled step holds ----
 
 def primitives(c):
-    return {e.primitive.name for e in all_eqns(step_jaxpr(c, C.ImplicitEuler(solver="cg")))}
+    return {e.primitive.name for e in all_eqns(step_jaxpr(c, C.ImplicitEuler(linear_solver=C.CG())))}
 
 
 def test_a_scene_without_colliders_compiles_no_contact_terms():
@@ -202,7 +202,7 @@ def test_a_scene_without_colliders_compiles_no_contact_terms():
     frictional = C.replace(base, colliders=(C.Sphere(np.zeros(3), 0.1, friction=0.3),))
     assert "log" not in primitives(base)  # the barrier is the only log in a step
     assert "log" in primitives(frictionless)
-    n = [len(list(all_eqns(step_jaxpr(c, C.ImplicitEuler(solver="cg"))))) for c in (base, frictionless, frictional)]
+    n = [len(list(all_eqns(step_jaxpr(c, C.ImplicitEuler(linear_solver=C.CG()))))) for c in (base, frictionless, frictional)]
     assert n[0] < n[1] < n[2]
 
 
@@ -214,7 +214,7 @@ def test_gradients_through_contact_match_finite_differences():
     on a sphere, d(final positions)/d(sphere centre) and d/d(stiffness)."""
     c = C.grid(3, 0.1, origin=(-0.15, 0.85, -0.15), mass=0.01, stiffness=1e3, damping=0.01, gravity=9.8, pins=[],
                dtype=np.float64, colliders=(C.Sphere(SPHERE_C, 0.3, friction=0.3),))
-    integ = C.ImplicitEuler(solver="dense")
+    integ = C.ImplicitEuler(linear_solver=C.Cholesky())
     s0 = C.State.at_rest(c)
     for _ in range(20):  # drape (the same compiled step as below)
         s0, _ = C.step(c, s0, 1 / 30, integ)

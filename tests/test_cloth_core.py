@@ -82,8 +82,8 @@ def test_bad_step_inputs_raise(lab):
         C.step(lab, C.State(s.x[:-1], s.v[:-1]), 0.1, C.ExplicitEuler())
     with pytest.raises(ValueError, match="pin ids"):
         C.grid(3, pins=[0, 16])
-    with pytest.raises(ValueError, match="solver"):
-        C.ImplicitEuler(solver="lu")
+    with pytest.raises(ValueError, match="linear_solver must be"):
+        C.ImplicitEuler(linear_solver="lu")
     with pytest.raises(ValueError, match="substeps"):
         C.ExplicitEuler(substeps=0)
 
@@ -111,6 +111,34 @@ def test_cross_check_internals_moved_to_reference():
         assert name not in C.__all__
     with pytest.raises(AttributeError, match="no attribute 'spring_hessians'"):
         C.spring_hessians  # noqa: B018
+
+
+def test_linear_solver_settings_and_their_old_keywords():
+    """The linear solve is a settings object; the old string keywords give the same (equal,
+    equally hashed) settings for one release, with a DeprecationWarning."""
+    I = C.ImplicitEuler
+    assert I() == I(linear_solver="auto") == I(linear_solver=C.Auto(C.CG(C.Jacobi())))
+    assert I().linear(16) == C.Cholesky() and I().linear(17) == C.CG()
+    assert I(linear_solver=C.Auto(C.CG(tol=1e-9))).linear(100) == C.CG(tol=1e-9)
+    old_new = [(dict(solver="dense"), C.Cholesky()),
+               (dict(solver="cg", preconditioner="two_level", cg_tol=1e-8), C.CG(C.TwoLevel(), tol=1e-8)),
+               (dict(cg_forcing=0.0, cg_max_iters=9), C.Auto(C.CG(forcing=0.0, max_iters=9)))]
+    for old, new in old_new:
+        with pytest.warns(DeprecationWarning, match="linear_solver=cloth.Cholesky"):
+            a = I(newton_iters=5, **old)
+        b = I(newton_iters=5, linear_solver=new)
+        assert a == b and hash(a) == hash(b) and a.solver is None
+    with pytest.raises(ValueError, match="not both"):
+        I(linear_solver=C.CG(), solver="cg")
+    with pytest.raises(ValueError, match="solver must be one of"), pytest.warns(DeprecationWarning):
+        I(solver="lu")
+    with pytest.raises(ValueError, match="preconditioner must be one of"), pytest.warns(DeprecationWarning):
+        I(preconditioner="multigrid")
+    for bad in (dict(tol=-1.0), dict(max_iters=0), dict(forcing=1.0)):
+        with pytest.raises(ValueError, match="CG " + next(iter(bad))):
+            C.CG(**bad)
+    with pytest.raises(ValueError, match="Auto cg must be"):
+        C.Auto(C.Cholesky())
 
 
 def test_radial_blocks_equal_element_hessian():
@@ -273,9 +301,9 @@ def test_converged_step_matches_scipy_reference(undamped):
     v0[np.asarray(c.pinned)] = 0
     h = 1 / 30
     ref = scipy_newton_step(c, x0, v0, h)
-    for solver in ("dense", "cg"):
+    for linear in (C.Cholesky(), C.CG(tol=1e-13, max_iters=2000)):
         s, info = C.step(c, C.State(jnp.asarray(x0), jnp.asarray(v0)), h,
-                         C.ImplicitEuler(solver=solver, tol=1e-12, newton_iters=30, cg_tol=1e-13, cg_max_iters=2000))
+                         C.ImplicitEuler(linear_solver=linear, tol=1e-12, newton_iters=30))
         assert bool(info.converged) and bool(info.stable)
         np.testing.assert_allclose(s.x, ref, atol=1e-8)
 
@@ -290,7 +318,7 @@ def test_single_newton_step_is_lab_17_23(undamped):
     h = 1 / 60
     ref = scipy_newton_step(c, x0, v0, h, iters=1)
     s, info = C.step(c, C.State(jnp.asarray(x0), jnp.asarray(v0)), h,
-                     C.ImplicitEuler(solver="dense", newton_iters=1, line_search=False, project_psd=False))
+                     C.ImplicitEuler(linear_solver=C.Cholesky(), newton_iters=1, line_search=False, project_psd=False))
     assert int(info.newton_iters) == 1
     np.testing.assert_allclose(s.x, ref, atol=1e-12)
 
@@ -298,8 +326,8 @@ def test_single_newton_step_is_lab_17_23(undamped):
 def test_dense_and_cg_agree(lab):
     s = C.State(jnp.asarray(perturbed(lab, 0.03, 6)).at[np.asarray(lab.pinned)].set(lab.rest[np.asarray(lab.pinned)]),
                 jnp.zeros_like(lab.rest))
-    a, ia = C.step(lab, s, 1 / 30, C.ImplicitEuler(solver="dense", tol=1e-10, newton_iters=30))
-    b, ib = C.step(lab, s, 1 / 30, C.ImplicitEuler(solver="cg", tol=1e-10, newton_iters=30, cg_tol=1e-12, cg_max_iters=2000))
+    a, ia = C.step(lab, s, 1 / 30, C.ImplicitEuler(linear_solver=C.Cholesky(), tol=1e-10, newton_iters=30))
+    b, ib = C.step(lab, s, 1 / 30, C.ImplicitEuler(linear_solver=C.CG(tol=1e-12, max_iters=2000), tol=1e-10, newton_iters=30))
     assert int(ib.cg_iters) > 0 and int(ia.cg_iters) == 0
     np.testing.assert_allclose(a.x, b.x, atol=1e-6)
 
@@ -310,7 +338,7 @@ def test_free_fall_matches_backward_euler_recursion():
                 pinned=np.zeros(2, bool), gravity=np.array([0.0, -9.8, 0.0]), damping=np.asarray(0.0))
     x, v = np.asarray(c.rest), np.array([[0.1, 0.0, 0.0], [0.0, 1.0, 0.0]])
     h = 0.05
-    states, infos = C.rollout(c, C.State(jnp.asarray(x), jnp.asarray(v)), h, 10, C.ImplicitEuler(solver="cg"))
+    states, infos = C.rollout(c, C.State(jnp.asarray(x), jnp.asarray(v)), h, 10, C.ImplicitEuler(linear_solver=C.CG()))
     for n in range(10):
         v = v + h * np.array([0, -9.8, 0])
         x = x + h * v
@@ -332,7 +360,7 @@ def test_stiff_damped_case_implicit_stable_explicit_flagged():
 
 @pytest.mark.slow
 def test_pins_exactly_fixed_and_grad_check(lab):
-    states, _ = C.rollout(lab, C.State.at_rest(lab), 1 / 60, 20, C.ImplicitEuler(solver="cg"))
+    states, _ = C.rollout(lab, C.State.at_rest(lab), 1 / 60, 20, C.ImplicitEuler(linear_solver=C.CG()))
     pinned = np.asarray(lab.pinned)
     assert np.array_equal(np.asarray(states.x[:, pinned]), np.broadcast_to(np.asarray(lab.rest)[pinned], (20, 2, 3)))
     check_grads(lambda x: C.energy(lab, x), (jnp.asarray(perturbed(lab, 0.05, 7)),), order=2, modes=("fwd", "rev"))

@@ -69,7 +69,7 @@ def test_all_pinned_no_pins_and_tiny_grid():
 def test_large_grid_with_cg():
     c = C.grid(127, 0.2, dtype=np.float32)
     assert c.num_particles == 128 * 128 and c.dtype == np.float32
-    states, infos = C.rollout(c, C.State.at_rest(c), 1 / 60, 2, C.ImplicitEuler(solver="cg"))
+    states, infos = C.rollout(c, C.State.at_rest(c), 1 / 60, 2, C.ImplicitEuler(linear_solver=C.CG()))
     assert bool(jnp.all(infos.stable)) and bool(jnp.all(jnp.isfinite(states.x)))
     assert int(infos.cg_iters[0]) > 0
 
@@ -83,10 +83,10 @@ def largest_intermediate(jaxpr):
 def test_cg_step_forms_no_dense_matrix():
     c = C.grid(31, 0.2)
     N = c.num_particles
-    assert largest_intermediate(step_jaxpr(c, C.ImplicitEuler(solver="cg"))) < (3 * N) ** 2
+    assert largest_intermediate(step_jaxpr(c, C.ImplicitEuler(linear_solver=C.CG()))) < (3 * N) ** 2
     # and the check can fail: the dense step does form one
     small = C.grid(7, 0.2)
-    assert largest_intermediate(step_jaxpr(small, C.ImplicitEuler(solver="dense"))) >= (3 * small.num_particles) ** 2
+    assert largest_intermediate(step_jaxpr(small, C.ImplicitEuler(linear_solver=C.Cholesky()))) >= (3 * small.num_particles) ** 2
 
 
 def test_explicit_step_has_no_hessian_and_undamped_has_no_damping():
@@ -96,13 +96,13 @@ def test_explicit_step_has_no_hessian_and_undamped_has_no_damping():
     assert largest_intermediate(step_jaxpr(c, C.ExplicitEuler(substeps=4))) < (3 * c.num_particles) ** 2
     undamped = C.grid(10, 0.2, damping=0.0)
     assert not undamped.damped and c.damped
-    for integ in (C.ExplicitEuler(substeps=4), C.ImplicitEuler(solver="cg")):
+    for integ in (C.ExplicitEuler(substeps=4), C.ImplicitEuler(linear_solver=C.CG())):
         n_damped = sum(1 for _ in all_eqns(step_jaxpr(c, integ)))
         n_undamped = sum(1 for _ in all_eqns(step_jaxpr(undamped, integ)))
         assert n_undamped < n_damped
     # the damping leaf of an undamped scene is not read by the compiled step
     leaves = jax.tree_util.tree_leaves((undamped, C.State.at_rest(undamped)))
     idx = [i for i, l in enumerate(leaves) if l is undamped.damping][0]
-    jp = step_jaxpr(undamped, C.ImplicitEuler(solver="cg"))
+    jp = step_jaxpr(undamped, C.ImplicitEuler(linear_solver=C.CG()))
     var = jp.invars[idx]
     assert all(var not in e.invars for e in all_eqns(jp))

@@ -16,7 +16,7 @@ from jaxsim.cloth._extrapolate import SMOOTH_NEWTON, History, acceleration
 from jaxsim.cloth._step import _implicit
 
 DT = 1 / 60
-INTEG = C.ImplicitEuler(solver="cg", tol=1e-6, extrapolate=1)
+INTEG = C.ImplicitEuler(linear_solver=C.CG(), tol=1e-6, extrapolate=1)
 LAB = dataclasses.replace(INTEG, extrapolate=False)
 STEPS = 6
 
@@ -138,7 +138,7 @@ def test_constant_jerk_start_takes_one_newton_iteration(moving):
     iteration meets float64's gradient test on the swinging grid, where the
     constant-acceleration start needs two; same converged positions."""
     c, _, s = moving
-    one = dataclasses.replace(INTEG, tol=None, cg_forcing=0.0)
+    one = dataclasses.replace(INTEG, tol=None, linear_solver=C.CG(forcing=0.0))
     two = dataclasses.replace(one, extrapolate=2)
     x1, i1 = C.rollout(c, s, DT, STEPS, one)
     x2, i2 = C.rollout(c, s, DT, STEPS, two)
@@ -151,7 +151,7 @@ def test_constant_jerk_start_takes_one_newton_iteration(moving):
 @pytest.mark.slow
 def test_constant_jerk_rollout_equals_stepping_by_hand(moving):
     c, _, s = moving
-    integ = dataclasses.replace(INTEG, tol=None, cg_forcing=0.0, extrapolate=2)
+    integ = dataclasses.replace(INTEG, tol=None, linear_solver=C.CG(forcing=0.0), extrapolate=2)
     states, infos = C.rollout(c, s, DT, 4, integ)
     v1, v2 = before(c, s)
     vs, cur = [v2, v1, s.v], s
@@ -170,8 +170,8 @@ def test_auto_takes_the_constant_jerk_start_after_a_smooth_step(moving):
     ``SMOOTH_NEWTON`` iterations: one Newton iteration per step on the swinging grid, where
     the linear start takes two."""
     c, _, s = moving
-    auto = C.ImplicitEuler(solver="cg")
-    assert auto.extrapolate == "auto" and C.ImplicitEuler(solver="cg", extrapolate=True) == auto
+    auto = C.ImplicitEuler(linear_solver=C.CG())
+    assert auto.extrapolate == "auto" and C.ImplicitEuler(linear_solver=C.CG(), extrapolate=True) == auto
     xa, ia = C.rollout(c, s, DT, STEPS, auto)
     xl, il = C.rollout(c, s, DT, STEPS, dataclasses.replace(auto, extrapolate=1))
     assert bool(jnp.all(ia.converged)) and bool(jnp.all(il.converged))
@@ -213,7 +213,7 @@ def test_residual_stop_takes_no_iteration_at_equilibrium_and_one_fewer_in_float3
     np.testing.assert_allclose(np.asarray(xr.x), np.asarray(xt.x), atol=1e-6)
 
 
-AUTO = C.ImplicitEuler(solver="cg")
+AUTO = C.ImplicitEuler(linear_solver=C.CG())
 
 
 @pytest.fixture(scope="module")

@@ -81,7 +81,7 @@ def test_buckling_steps_of_scene_c_64_converge_at_a_stationary_point():
     equations (checked in numpy, independently of the solver's own gradient)."""
     c = stiff_grid(63)
     h = 1 / 30
-    integ = C.ImplicitEuler(solver="cg", preconditioner="two_level", trace=True)
+    integ = C.ImplicitEuler(linear_solver=C.CG(C.TwoLevel()), trace=True)
     states, info = jax.jit(lambda s: C.rollout(c, s, h, 10, integ))(C.State.at_rest(c))
     iters = np.asarray(info.newton_iters)
     assert np.all(np.asarray(info.converged)) and iters.max() <= 12, iters
@@ -107,7 +107,7 @@ def test_a_stationary_phase_converges_where_its_first_step_raises_the_gradient(m
     h = 1 / 30
     data = np.load(os.path.join(os.path.dirname(__file__), "data", "c32_k1e5_hard_step.npz"))
     state = C.State(data["x"], data["v"])
-    integ = C.ImplicitEuler(solver="cg", preconditioner="two_level", trace=True)
+    integ = C.ImplicitEuler(linear_solver=C.CG(C.TwoLevel()), trace=True)
     new, info = C.step(c, state, h, integ, guess=data["guess"])
     n = int(info.newton_iters)
     assert bool(info.converged) and n < 20, (n, float(info.rel_grad))
@@ -118,6 +118,7 @@ def test_a_stationary_phase_converges_where_its_first_step_raises_the_gradient(m
     assert len(phase) >= 3 and rel[phase[0]] > 10 * rel[phase[0] - 1]  # the first step raised it
     # one step per try, as before the phase: the cap
     monkeypatch.setattr(_newton, "STATIONARY_STEPS", 1)
-    single = dataclasses.replace(integ, cg_max_iters=integ.cg_max_iters + 1)  # a new trace
+    single = dataclasses.replace(integ, linear_solver=dataclasses.replace(integ.linear_solver,
+                                                                 max_iters=integ.linear_solver.max_iters + 1))  # a new trace
     _, info1 = C.step(c, state, h, single, guess=data["guess"])
     assert not bool(info1.converged) and int(info1.newton_iters) == 20

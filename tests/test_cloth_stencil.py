@@ -124,9 +124,9 @@ def test_planes_equal_the_particle_layout(project_psd):
                                rtol=0, atol=1e-13)
 
 
-@pytest.mark.parametrize("integ", [C.ImplicitEuler(solver="cg"), C.ImplicitEuler(solver="dense"),
-                                   C.ExplicitEuler(substeps=10), C.ImplicitEuler(solver="cg", project_psd=False),
-                                   C.ImplicitEuler(solver="cg", preconditioner="two_level")],
+@pytest.mark.parametrize("integ", [C.ImplicitEuler(linear_solver=C.CG()), C.ImplicitEuler(linear_solver=C.Cholesky()),
+                                   C.ExplicitEuler(substeps=10), C.ImplicitEuler(linear_solver=C.CG(), project_psd=False),
+                                   C.ImplicitEuler(linear_solver=C.CG(C.TwoLevel()))],
                          ids=["cg", "dense", "explicit", "cg-exact", "cg-two-level"])
 @pytest.mark.slow
 def test_steps_with_the_grid_operator_equal_the_general_operator(integ):
@@ -144,7 +144,7 @@ def test_steps_with_the_grid_operator_equal_the_general_operator(integ):
 def test_gradient_through_the_grid_operator_equals_the_general_one():
     lab = C.lab_cloth(dtype=np.float64)
     gen, perm = permuted(lab)
-    integ = C.ImplicitEuler(solver="cg")
+    integ = C.ImplicitEuler(linear_solver=C.CG())
 
     def loss(k, c):
         c = C.replace(c, stiffness=k)
@@ -160,7 +160,7 @@ def test_grid_step_compiles_without_gathers_or_scatters():
     """The grid scene's step reads its springs by slices only; the same scene in another
     spring order gathers (the test can fail both ways)."""
     lab = C.lab_cloth(dtype=np.float64)
-    integ = C.ImplicitEuler(solver="cg")
+    integ = C.ImplicitEuler(linear_solver=C.CG())
     prims = {e.primitive.name for e in all_eqns(step_jaxpr(lab, integ))}
     assert not {p for p in prims if "gather" in p or "scatter" in p}, prims
     prims_gen = {e.primitive.name for e in all_eqns(step_jaxpr(permuted(lab)[0], integ))}
@@ -181,7 +181,7 @@ def test_contact_steps_on_planes_equal_the_general_operator():
                colliders=(C.Sphere(np.zeros(3), 0.1),))
     assert c.stencil is not None
     gen, _ = permuted(c)
-    integ = C.ImplicitEuler(solver="cg")
+    integ = C.ImplicitEuler(linear_solver=C.CG())
     a, ia = C.rollout(c, C.State.at_rest(c), 1 / 60, 8, integ)
     b, ib = C.rollout(gen, C.State.at_rest(gen), 1 / 60, 8, integ)
     assert bool(jnp.all(ia.converged))

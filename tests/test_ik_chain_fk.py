@@ -120,7 +120,7 @@ def test_arc_lean_matches_shortest_arc_and_is_safe_where_degenerate():
     """The batched CCD sweep's arc: the shortest arc (as ``from_two_vectors``) on generic
     pairs, accurate next to a half-turn, and the identity, with finite gradients, on zero
     and exactly opposite vectors."""
-    from jaxsim.ik import _quat
+    from jaxsim._geometry import quat as _quat
 
     rng = np.random.default_rng(3)
     a, b = rng.normal(size=(2, 3, 200)) * rng.uniform(0.01, 10.0, size=(2, 1, 200))

@@ -14,7 +14,8 @@ from hypothesis import strategies as st
 from jax.test_util import check_grads
 
 from jaxsim import ik
-from jaxsim.ik import _horn, _inputs, _quat, _solve
+from jaxsim._geometry import horn as _horn, quat as _quat
+from jaxsim.ik import _inputs, _solve
 from jaxsim.ik._skeleton import topology
 
 from _helpers import random_rotations

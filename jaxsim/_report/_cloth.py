@@ -45,17 +45,17 @@ def pareto(doc: Doc) -> None:
     fig, axes = fig_axes(len(scenes), 2, w=4.6, h=3.4)
     for col, (name, c) in enumerate(scenes.items()):
         doc.progress(f"cloth 1/4: {name}: start state and reference ({ref_subs} substeps/frame)")
-        s30 = _last(C.rollout(c, C.State.at_rest(c), dt, 30, C.ImplicitEuler(solver="cg"))[0])
-        exact1 = C.step(c, s30, dt, C.ImplicitEuler(solver="cg", tol=1e-12, cg_tol=1e-12, newton_iters=50))[0]
+        s30 = _last(C.rollout(c, C.State.at_rest(c), dt, 30, C.ImplicitEuler(linear_solver=C.CG()))[0])
+        exact1 = C.step(c, s30, dt, C.ImplicitEuler(linear_solver=C.CG(tol=1e-12), tol=1e-12, newton_iters=50))[0]
         ref = _last(C.rollout(c, s30, dt, T, C.ExplicitEuler(substeps=ref_subs))[0])
         ref_half = _last(C.rollout(c, s30, dt, T, C.ExplicitEuler(substeps=ref_subs // 2))[0])
         ref_err = float(jnp.max(jnp.abs(ref.x - ref_half.x)))
         methods = [(f"explicit x{s}", "explicit", C.ExplicitEuler(substeps=s)) for s in subs]
-        lab_step = C.ImplicitEuler(solver="cg", newton_iters=1, line_search=False, extrapolate=False)  # linearised at x^n
+        lab_step = C.ImplicitEuler(linear_solver=C.CG(), newton_iters=1, line_search=False, extrapolate=False)  # linearised at x^n
         methods += [("implicit one-Newton", "one-Newton", lab_step)]
         if not quick:  # quick mode: no dense solve (its compile dominates the quick run)
-            methods += [("implicit dense, converged", "dense", C.ImplicitEuler(solver="dense"))]
-        methods += [(f"implicit CG tol {t:.0e}", "CG", C.ImplicitEuler(solver="cg", cg_tol=t)) for t in cg_tols]
+            methods += [("implicit dense, converged", "dense", C.ImplicitEuler(linear_solver=C.Cholesky()))]
+        methods += [(f"implicit CG tol {t:.0e}", "CG", C.ImplicitEuler(linear_solver=C.CG(tol=t))) for t in cg_tols]
         for k, (label, family, integ) in enumerate(methods):
             doc.progress(f"cloth 1/4: {name}: {label} ({k + 1}/{len(methods)})")
             (states, infos), sec = _time_rollout(c, s30, dt, T, integ)
@@ -240,12 +240,13 @@ def cost_growth(doc: Doc) -> None:
     rows = []
     for n in sides:
         c = C.grid(n - 1, 0.2)
-        s = _last(C.rollout(c, C.State.at_rest(c), 1 / 60, 10, C.ImplicitEuler(solver="cg"))[0])
+        s = _last(C.rollout(c, C.State.at_rest(c), 1 / 60, 10, C.ImplicitEuler(linear_solver=C.CG()))[0])
         for solver in ("dense", "cg"):
             if solver == "dense" and n > dense_max:
                 continue
             doc.progress(f"cloth 4/4: {n}x{n}, {solver}")
-            _, sec = _time_rollout(c, s, 1 / 60, 10, C.ImplicitEuler(solver=solver))
+            _, sec = _time_rollout(c, s, 1 / 60, 10,
+                                   C.ImplicitEuler(linear_solver=C.Cholesky() if solver == "dense" else C.CG()))
             rows.append({"side": n, "N": n * n, "solver": solver, "ms": 1e3 * sec})
     fig, axes = fig_axes(1, 1, w=5.5, h=4.0)
     ax = axes[0, 0]

@@ -9,12 +9,14 @@ from ._energy import energy, forces, kinetic_energy, spring_energy, total_energy
 from ._mesh import disk, from_mesh, grid_triangles, mesh_springs
 from ._obj import TABLECLOTH_OBJ, read_obj, write_obj, write_obj_sequence
 from ._integrators import AUTO_DENSE_MAX_PARTICLES, ExplicitEuler, ImplicitEuler
+from ._linear import CG, Auto, Cholesky, Jacobi, TwoLevel
 from ._scene import Cloth, State, grid, grid_springs, lab_cloth, pin_mask, replace
 from ._step import StepInfo, rollout, step
 from ._trace import HESSIANS, NewtonTrace
 
 __all__ = [
     "Cloth", "State", "StepInfo", "NewtonTrace", "HESSIANS", "EnergyReport", "energy_report", "ExplicitEuler", "ImplicitEuler", "AUTO_DENSE_MAX_PARTICLES",
+    "Cholesky", "CG", "Auto", "Jacobi", "TwoLevel",
     "grid", "grid_springs", "lab_cloth", "pin_mask", "replace", "energy", "spring_energy", "forces",
     "Plane", "Sphere", "Capsule", "FRICTION_EPS_V", "from_mesh", "mesh_springs", "grid_triangles", "disk",
     "read_obj", "write_obj", "write_obj_sequence", "TABLECLOTH_OBJ", "kinetic_energy", "total_energy", "reference", "step", "rollout", "batch_rollout", "stack_scenes",

@@ -21,7 +21,7 @@ It is symmetric positive definite: ``A_c`` is SPD when the blocks are PSD and th
 positive, and block Jacobi is a convergent smoother because ``2D - A = M/h^2 +
 sum_s [[A_s, A_s], [A_s, A_s]]`` is positive definite.  Each application costs two
 extra operator products; it pays where CG needs many iterations (see the README's
-scene C) and not on soft cloth, hence ``ImplicitEuler(preconditioner="jacobi")`` by
+scene C) and not on soft cloth, hence ``CG(preconditioner=Jacobi())`` by
 default.
 """
 

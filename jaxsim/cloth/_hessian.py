@@ -19,6 +19,7 @@ from . import _contact as ct
 from . import _planes as pl
 from . import _problem as pr
 from ._coarse import cholesky, coarse_correction, coarse_factor, least_mass, two_level
+from ._linear import TwoLevel
 from ._linsolve import block_inverse
 from ._scene import spring_diff, spring_sum
 from ._vec import matvec
@@ -47,12 +48,12 @@ class HessianOps:
     Args:
       p: the step problem.
       planar: run PCG on planes (needs ``p.cloth.stencil``).
-      preconditioner: ``ImplicitEuler.preconditioner``.
+      preconditioner: ``CG.preconditioner`` (``Jacobi()`` or ``TwoLevel()``), ``None`` for Cholesky.
     """
 
-    def __init__(self, p: pr.StepProblem, planar: bool, preconditioner: str):
+    def __init__(self, p: pr.StepProblem, planar: bool, preconditioner):
         c = p.cloth
-        self.p, self.kind = p, preconditioner
+        self.p, self.two_level = p, isinstance(preconditioner, TwoLevel)
         self.st = c.stencil if planar else None
         free = p.free
         if self.st is None:
@@ -61,7 +62,7 @@ class HessianOps:
             self.free = pl.particle_planes(self.st, free[:, 0])[None]
             self.m = pl.particle_planes(self.st, c.mass)[None]
         self.lam_min = None  # the two-level coarse matrix's eigenvalue bound, once per step
-        if preconditioner == "two_level":
+        if self.two_level:
             if self.st is not None and c.coarse_block:
                 agg = pl.block_reduce(self.st, c.coarse_block, self.m[0] * self.free[0])
             else:
@@ -133,7 +134,7 @@ class HessianOps:
         # every entry several times (``_fusion``)
         D = None if self.st is None else materialized(self.diagonal(A_psd, C_cg))
         jacobi = self.jacobi(A_psd, C_cg, D)
-        if self.kind == "jacobi":
+        if not self.two_level:
             return jacobi
         p, c = self.p, self.p.cloth
         if self.st is not None and c.coarse_block:  # blocks of the grid: no scatter, no gather

@@ -18,6 +18,7 @@ from . import _contact as ct
 from . import _problem as pr
 from ._linsolve import pcg
 from ._hessian import block_jacobi
+from ._linear import Cholesky
 
 
 def stationarity(w, p: pr.StepProblem):
@@ -52,7 +53,8 @@ def _solution_jvp(integ, primals, tangents):
         return jax.jvp(lambda w: stationarity(w, p), (w_star,), (t,))[1]
 
     N = p.cloth.num_particles
-    if integ.resolved_solver(N) == "dense":
+    lin = integ.linear(N)
+    if isinstance(lin, Cholesky):
         def solve(mv, b):
             eye = jnp.eye(3 * N, dtype=b.dtype).reshape(3 * N, N, 3)
             A = jax.vmap(mv)(eye).reshape(3 * N, 3 * N)
@@ -63,7 +65,7 @@ def _solution_jvp(integ, primals, tangents):
 
         def solve(mv, b):
             # the solution may be a stationary point where the Hessian is indefinite
-            return pcg(mv, b, jnp.zeros_like(b), Minv, tol=integ.cg_tol, max_iters=integ.cg_max_iters,
+            return pcg(mv, b, jnp.zeros_like(b), Minv, tol=lin.tol, max_iters=lin.max_iters,
                        indefinite=True)[0]
 
     dw = lax.custom_linear_solve(matvec, rhs, solve, symmetric=True)

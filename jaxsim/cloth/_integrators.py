@@ -4,19 +4,14 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import warnings
 
 import numpy as np
 
 from .._validate import check_bool, check_int, check_real
+from ._linear import AUTO_DENSE_MAX_PARTICLES, CG, Auto, Cholesky, Jacobi, TwoLevel, check_linear_solver, resolve
 
-SOLVERS = ("dense", "cg", "auto")
-PRECONDITIONERS = ("jacobi", "two_level")
-
-#: ``solver="auto"`` uses dense Cholesky up to this many particles, CG above.  Measured
-#: on lab-like grids (converged step, float64, 2-core CPU): dense and CG take the same
-#: time up to 4x4 = 16 particles (0.13 ms), CG is faster from 5x5 = 25 (0.28 against
-#: 0.31 ms), 2.1x faster at 36 and 3.2x at 64.
-AUTO_DENSE_MAX_PARTICLES = 16
+__all__ = ["AUTO_DENSE_MAX_PARTICLES", "DEFAULT_RTOL", "ExplicitEuler", "ImplicitEuler"]
 
 #: Default ``ImplicitEuler.rtol`` per dtype: the relative gradient a converged step
 #: reaches with margin (measured on the lab cloth, the stiff scenes and the extreme
@@ -42,8 +37,11 @@ class ImplicitEuler:
     """Backward Euler by Newton's method on the incremental potential (17.19).
 
     Attributes:
-      solver: ``"dense"`` (Cholesky on the assembled Hessian), ``"cg"`` (matrix-free
-        block-Jacobi PCG) or ``"auto"`` (dense up to ``AUTO_DENSE_MAX_PARTICLES``).
+      linear_solver: the Newton direction's linear solve: ``cloth.Cholesky()`` (dense,
+        the assembled Hessian), ``cloth.CG(preconditioner=cloth.Jacobi() | cloth.TwoLevel(),
+        tol=, forcing=, max_iters=)`` (matrix-free PCG), or ``cloth.Auto(cg=CG())`` (default,
+        also ``"auto"``): Cholesky up to ``AUTO_DENSE_MAX_PARTICLES`` particles, its CG
+        above (``jaxsim.cloth._linear``).
       newton_iters: maximum Newton iterations per step.
       tol: ``None`` (default): Newton stops as soon as the gradient test below holds,
         at the start too (0 iterations for a cloth already at rest).  A number (m/s):
@@ -75,20 +73,6 @@ class ImplicitEuler:
         (17.19) solves backward Euler's equations (``_newton.STATIONARY_REL``).  ``True``: always clamp each
         spring block's negative (compression) eigenvalue at 0 (the lab's choice; on stiff, light cloth it turns
         Newton's quadratic convergence into linear).  ``False``: never project.
-      preconditioner: PCG's preconditioner.  ``"jacobi"`` (default): the 3x3 diagonal
-        blocks.  ``"two_level"``: block Jacobi around a coarse Galerkin solve on at most
-        64 aggregates of particles (``jaxsim.cloth._coarse``); two extra operator
-        products per CG iteration, for 8-14x fewer CG iterations on stiff, light cloth
-        (``k h^2 / m`` in the hundreds; scene C in the README runs 1.4-2.4x faster), slower
-        on soft cloth.
-      cg_tol: relative residual at which PCG stops (the floor of the forcing term below).
-      cg_forcing: inexact Newton's forcing term (Eisenstat & Walker 1996): each
-        iteration's PCG stops at the relative residual ``max(cg_tol, min(cg_forcing,
-        rel))``, with ``rel`` the current relative gradient, so early iterations solve
-        loosely and the last ones to ``cg_tol`` (the local convergence stays
-        superlinear).  ``0`` always solves to ``cg_tol``, and so does a single Newton
-        iteration (``newton_iters=1``, the lab's linearised step).
-      cg_max_iters: PCG iteration cap per Newton iteration.
       max_backtracks: line-search halvings before giving up on a step.
       trace: log every Newton iteration in ``StepInfo.trace`` (a ``NewtonTrace``:
         objective, relative gradient, step, line search, CG iterations and which
@@ -104,7 +88,7 @@ class ImplicitEuler:
         moving cloth one Newton iteration closer to the solution.  ``2``: the
         constant-jerk extrapolation ``x^n + h (3 v^n - 3 v^{n-1} + v^{n-2})``,
         whose first PCG solve runs to the relative residual ``rtol / rel`` that the
-        gradient test needs (at least ``cg_tol``, at most the forcing term's): on a 32x32
+        gradient test needs (at least ``CG.tol``, at most the forcing term's): on a 32x32
         lab-like grid one Newton iteration from it meets float64's gradient test
         (relative gradient 2.6e-10 to 3.2e-10, against 5e-9 to 1.2e-8 from the linear
         one), but on stiff, buckling cloth it costs iterations.  ``"auto"`` (default, also ``True``): ``2`` on a rollout's
@@ -112,37 +96,36 @@ class ImplicitEuler:
         iterations, else ``1``.  ``False`` (``0``):
         the lab's start.  Scenes with colliders always start from ``x^n`` (or its push-out
         off a moving collider).  ``step`` takes the same start as ``guess``.
+      solver, preconditioner, cg_tol, cg_forcing, cg_max_iters: the earlier spelling of
+        ``linear_solver`` (``solver="dense" | "cg" | "auto"``, ``preconditioner="jacobi" |
+        "two_level"``), kept for one release: a ``DeprecationWarning``, then the same
+        settings as the ``linear_solver`` they stand for (and equal to them).
     """
 
-    solver: str = "auto"
+    linear_solver: Cholesky | CG | Auto | str = "auto"
     newton_iters: int = 20
     tol: float | None = None
     rtol: float | None = None
     line_search: bool = True
     project_psd: bool | str = "auto"
-    preconditioner: str = "jacobi"
-    cg_tol: float = 1e-6
-    cg_forcing: float = 1e-2
-    cg_max_iters: int = 500
     max_backtracks: int = 30
     trace: bool = False
     extrapolate: bool | int | str = "auto"
+    solver: str | None = dataclasses.field(default=None, repr=False)
+    preconditioner: str | None = dataclasses.field(default=None, repr=False)
+    cg_tol: float | None = dataclasses.field(default=None, repr=False)
+    cg_forcing: float | None = dataclasses.field(default=None, repr=False)
+    cg_max_iters: int | None = dataclasses.field(default=None, repr=False)
 
     def __post_init__(self):
-        if not isinstance(self.solver, str) or self.solver not in SOLVERS:
-            raise ValueError(f"solver must be one of {SOLVERS}, got {self.solver!r}")
-        if not isinstance(self.preconditioner, str) or self.preconditioner not in PRECONDITIONERS:
-            raise ValueError(f"preconditioner must be one of {PRECONDITIONERS}, got {self.preconditioner!r}")
         set_ = functools.partial(object.__setattr__, self)
+        set_("linear_solver", _from_old_keywords(self))
+        for name in _OLD:
+            set_(name, None)
         set_("newton_iters", check_int("newton_iters", self.newton_iters, 1))
-        set_("cg_max_iters", check_int("cg_max_iters", self.cg_max_iters, 1))
         set_("max_backtracks", check_int("max_backtracks", self.max_backtracks, 0))
         if self.tol is not None:
             set_("tol", check_real("tol", self.tol, minimum=0.0))
-        set_("cg_tol", check_real("cg_tol", self.cg_tol, minimum=0.0))
-        set_("cg_forcing", check_real("cg_forcing", self.cg_forcing, minimum=0.0))
-        if self.cg_forcing >= 1:
-            raise ValueError(f"cg_forcing must be < 1, got {self.cg_forcing!r}")
         if self.rtol is not None:
             set_("rtol", check_real("rtol", self.rtol, minimum=0.0))
         set_("line_search", check_bool("line_search", self.line_search))
@@ -161,7 +144,35 @@ class ImplicitEuler:
         """``rtol``, or the dtype's default (``DEFAULT_RTOL``)."""
         return DEFAULT_RTOL[np.dtype(dtype)] if self.rtol is None else self.rtol
 
-    def resolved_solver(self, n_particles: int) -> str:
-        if self.solver != "auto":
-            return self.solver
-        return "dense" if n_particles <= AUTO_DENSE_MAX_PARTICLES else "cg"
+    def linear(self, n_particles: int) -> Cholesky | CG:
+        """The linear solver for a cloth of ``n_particles`` (an ``Auto`` resolved)."""
+        return resolve(self.linear_solver, n_particles)
+
+
+_OLD = ("solver", "preconditioner", "cg_tol", "cg_forcing", "cg_max_iters")
+_OLD_SOLVERS = ("dense", "cg", "auto")
+_OLD_PRECONDITIONERS = {"jacobi": Jacobi(), "two_level": TwoLevel()}
+
+
+def _from_old_keywords(s: ImplicitEuler):
+    """``linear_solver``, built from the deprecated keywords where any is given."""
+    given = [n for n in _OLD if getattr(s, n) is not None]
+    if not given:
+        return check_linear_solver(s.linear_solver)
+    if check_linear_solver(s.linear_solver) != Auto():
+        raise ValueError(f"give linear_solver= or the old keywords {given}, not both")
+    warnings.warn(f"ImplicitEuler({', '.join(given)}=...) is deprecated: use linear_solver=cloth.Cholesky() or "
+                  f"cloth.CG(preconditioner=cloth.Jacobi() | cloth.TwoLevel(), tol=, forcing=, max_iters=)",
+                  DeprecationWarning, stacklevel=4)
+    solver = "auto" if s.solver is None else s.solver
+    if not isinstance(solver, str) or solver not in _OLD_SOLVERS:
+        raise ValueError(f"solver must be one of {_OLD_SOLVERS}, got {s.solver!r}")
+    pre = "jacobi" if s.preconditioner is None else s.preconditioner
+    if not isinstance(pre, str) or pre not in _OLD_PRECONDITIONERS:
+        raise ValueError(f"preconditioner must be one of {tuple(_OLD_PRECONDITIONERS)}, got {s.preconditioner!r}")
+    if solver == "dense":
+        return Cholesky()
+    cg = CG(preconditioner=_OLD_PRECONDITIONERS[pre], tol=1e-6 if s.cg_tol is None else s.cg_tol,
+            forcing=1e-2 if s.cg_forcing is None else s.cg_forcing,
+            max_iters=500 if s.cg_max_iters is None else s.cg_max_iters)
+    return cg if solver == "cg" else Auto(cg)

@@ -14,6 +14,7 @@ from . import _energy as en
 from . import _problem as pr
 from ._hessian import HessianOps
 from ._integrators import ImplicitEuler
+from ._linear import Cholesky
 from ._linsolve import dense_solve, pcg
 from ._newton_state import Iterate, NewtonState
 from ._trace import NewtonTrace
@@ -85,7 +86,8 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol, start=None, tight_firs
     m = c.mass[:, None]
     dtype = p.x0.dtype
     eps = jnp.finfo(dtype).eps
-    solver = integ.resolved_solver(N)
+    lin = integ.linear(N)  # Cholesky() or CG(...)
+    dense = isinstance(lin, Cholesky)
     objective = functools.partial(pr.incremental_potential, p=p)
     grad = jax.grad(objective)
 
@@ -97,7 +99,8 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol, start=None, tight_firs
     projection = integ.project_psd  # True, False or "auto"
     f3 = free.repeat(3, axis=1).reshape(-1)
     # PCG on planes on a grid scene (``_planes``)
-    ops = HessianOps(p, planar=solver == "cg" and c.stencil is not None, preconditioner=integ.preconditioner)
+    ops = HessianOps(p, planar=not dense and c.stencil is not None,
+                    preconditioner=None if dense else lin.preconditioner)
 
     def dense_direction(b, H, indefinite=False):
         """Cholesky (LU with ``indefinite=True``) on ``H (3N, 3N)`` with pinned rows and
@@ -118,7 +121,7 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol, start=None, tight_firs
     def cg_direction(b, hvp, guess, Minv, tol, indefinite=False):
         """PCG on ``ops.restricted(hvp)`` in its layout; ``b``, ``guess`` and the result ``(N, 3)``."""
         dx, k, res, broke = pcg(ops.restricted(hvp), ops.to_cg(b), ops.to_cg(guess * free), Minv, tol=tol,
-                                max_iters=integ.cg_max_iters, indefinite=indefinite)
+                                max_iters=lin.max_iters, indefinite=indefinite)
         return ops.from_cg(dx), k, jnp.where(jnp.isfinite(res), res, jnp.inf), broke
 
     def hessian_parts(w, terms):
@@ -129,23 +132,23 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol, start=None, tight_firs
         A_exact = ops.blocks(w, terms, project_psd=False)
         A_psd = ops.blocks(w, terms, project_psd=True)
         C, C_cg = ops.contact(w)
-        if solver == "dense":
+        if dense:
             return A_exact, A_psd, C, None
         return A_exact, A_psd, C_cg, ops.preconditioner(A_psd, C, C_cg)
 
     def stationary_direction(b, parts, guess, tol):
         """``(dx, cg iterations, residual)``: the exact Hessian solved through negative curvature."""
         A_exact, _, C, Minv = parts
-        if solver == "dense":
+        if dense:
             return dense_direction(b, assembled(A_exact, C), indefinite=True)[:3]
         return cg_direction(b, ops.hvp(A_exact, C), guess, Minv, tol, indefinite=True)[:3]
 
     def newton_direction(w, b, parts, guess, tol):
         """``(dx, cg iterations, residual, index into _trace.HESSIANS)``."""
-        if solver == "dense" and projection is False:
+        if dense and projection is False:
             return first_definite(lambda: dense_direction(b, jax.hessian(objective)(w).reshape(3 * N, 3 * N)))
         A_exact, A_psd, C, Minv = parts
-        if solver == "dense":
+        if dense:
             if projection is True:
                 return first_definite(lambda: dense_direction(b, assembled(A_psd, C)))
             return first_definite(lambda: dense_direction(b, assembled(A_exact, C)),
@@ -215,11 +218,11 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol, start=None, tight_firs
 
     def body(s: NewtonState) -> NewtonState:
         cur = s.iterate
-        tol = integ.cg_tol
-        if integ.cg_forcing > 0 and integ.newton_iters > 1:  # inexact Newton (Eisenstat & Walker 1996)
-            tol = jnp.maximum(integ.cg_tol, jnp.minimum(integ.cg_forcing, cur.rel))
+        tol = cg_tol = 0.0 if dense else lin.tol
+        if not dense and lin.forcing > 0 and integ.newton_iters > 1:  # inexact Newton (Eisenstat & Walker 1996)
+            tol = jnp.maximum(cg_tol, jnp.minimum(lin.forcing, cur.rel))
             # from a start one iteration away: the residual reduction the gradient test needs
-            tol = jnp.where(s.tight & (s.it == 0), jnp.maximum(integ.cg_tol, jnp.minimum(tol, rtol / cur.rel)), tol)
+            tol = jnp.where(s.tight & (s.it == 0), jnp.maximum(cg_tol, jnp.minimum(tol, rtol / cur.rel)), tol)
         parts = hessian_parts(cur.w, cur.terms)
         tried = jnp.array(False)
         in_phase = s.phase > 0

@@ -38,7 +38,7 @@ class Cloth:
         scatter-add.
       aggregates: ``(N,)`` int32, derived at construction (leave it ``None``): each
         particle's aggregate, at most 64 of them, used by
-        ``ImplicitEuler(preconditioner="two_level")`` (``_coarse``): square blocks of the
+        ``CG(preconditioner=TwoLevel())`` (``_coarse``): square blocks of the
         particle grid on a grid scene (``stencil``), else the cells of a voxel grid over
         ``rest``.
       num_aggregates: static, the number of aggregates.

@@ -5,7 +5,7 @@ forward pass (pin the root, walk to the effectors); each step puts a joint on th
 to its neighbour at the bone's length (Algorithm 1, §4.1).  On a tree (§4.2) a joint
 takes the weighted centroid of its branches' proposals in the backward pass, and in
 the forward pass a sub-base with several active children turns its frame by the
-rotation that best aligns its child bones (Horn 1987, see ``_horn``), so bones leaving a
+rotation that best aligns its child bones (Horn 1987, ``jaxsim._geometry.horn``), so bones leaving a
 joint stay rigid; with joint limits each joint's local rotation is projected onto its
 limit set (§4.1's constraint step, :func:`fabrik_tree_sweep_frames`).
 
@@ -23,8 +23,9 @@ from jax import lax
 
 from .._dataclass import pytree_dataclass
 from .._dtype import tiny
-from . import _joints, _quat
-from ._horn import best_rotation
+from .._geometry import quat as _quat
+from . import _joints
+from .._geometry.horn import best_rotation
 from ._limits import about, best_angle
 from ._loop import SweepPlan
 from ._pose import batched, effector_sq_errors, limited, local_of

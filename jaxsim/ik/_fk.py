@@ -16,7 +16,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._dataclass import pytree_dataclass
-from . import _joints, _quat
+from .._geometry import quat as _quat
+from . import _joints
 from ._skeleton import chain_parents
 
 

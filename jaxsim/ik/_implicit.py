@@ -26,7 +26,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _quat
+from .._geometry import quat as _quat
 from ._fk import joint_positions
 
 

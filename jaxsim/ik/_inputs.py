@@ -10,7 +10,7 @@ import numpy as np
 
 from .._dataclass import is_concrete
 from .._validate import check_bool, check_finite
-from . import _quat
+from .._geometry import quat as _quat
 from ._settings import _Settings
 from ._skeleton import Skeleton, check_effectors
 

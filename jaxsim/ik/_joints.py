@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from jax import lax
 
-from . import _quat
+from .._geometry import quat as _quat
 
 #: By default the joint loop is unrolled for chains of at most this many joints ...
 UNROLL_MAX_JOINTS = 16

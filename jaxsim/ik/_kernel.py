@@ -18,7 +18,9 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from . import _ccd, _fabrik, _joints, _quat
+from .._fusion import materialized_rows
+from .._geometry import quat as _quat
+from . import _ccd, _fabrik, _joints
 from ._fk import fk_joints, fk_tree
 from ._limits import LimitTable, project_all
 from ._loop import run_plan
@@ -135,7 +137,7 @@ def bent_start(offsets, targets, local0, tol, *, topo):
     program it doubles their compile time."""
     J, B = len(topo.parents), targets.shape[2:]
     L0 = [_quat.renormalize(_quat.unstack(local0[i])) for i in range(J)]
-    P0, G0 = fk_tree(topo.parents, offsets, L0)
+    P0, G0 = (materialized_rows(x) for x in fk_tree(topo.parents, offsets, L0))
     L0 = break_symmetry_tree(topo, offsets, L0, P0, G0, [_quat.unstack(targets[k]) for k in range(targets.shape[0])],
                              tol)
     return _quat.stack([_quat.stack(batched(q, B)) for q in L0])

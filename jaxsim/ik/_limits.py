@@ -20,7 +20,7 @@ import numpy as np
 
 from .._dataclass import pytree_dataclass, static_field
 from .._validate import check_real
-from . import _quat
+from .._geometry import quat as _quat
 
 
 def _unit_axis(name, axis):
@@ -171,9 +171,8 @@ def limit_table(skeleton) -> LimitTable | None:
     """The skeleton's :class:`LimitTable`, or ``None`` when every joint is free."""
     if skeleton.limits is None:
         return None
-    offsets = skeleton.offsets
+    offsets, kids = skeleton.offsets, skeleton.children
     dtype = offsets.dtype
-    kids = skeleton.children
     axis, lo, hi, swing = [], [], [], []
     for i, lim in enumerate(skeleton.limits):
         a, l, h, s = (1.0, 0.0, 0.0), -math.pi, math.pi, math.pi
@@ -295,6 +294,17 @@ def project_all(table: LimitTable | None, L, joints=None):
     return out
 
 
+def _joint_rotations(skeleton, rotations):
+    """``rotations (..., J, 4)`` checked and normalised: ``(bad (..., J), list of J tuples)``,
+    ``bad`` marking rotations with a NaN or inf entry."""
+    raw = jnp.asarray(rotations, skeleton.offsets.dtype)
+    J = skeleton.num_joints
+    if raw.shape[-2:] != (J, 4):
+        raise ValueError(f"rotations must have shape (..., {J}, 4), got {raw.shape}")
+    q = _quat.unit_quaternions(raw)
+    return ~jnp.all(jnp.isfinite(raw), axis=-1), [_quat.unstack(q[..., i, :], axis=-1) for i in range(J)]
+
+
 def limit_violation(skeleton, rotations) -> jax.Array:
     """Per joint, the angle (rad) by which ``rotations (..., J, 4)`` break the skeleton's limits.
 
@@ -302,18 +312,12 @@ def limit_violation(skeleton, rotations) -> jax.Array:
       ``(..., J)``: 0 for a joint within its limit (and for a free joint); ``inf`` for a
       rotation with a NaN or inf entry, which is within no limit.
     """
-    raw = jnp.asarray(rotations, skeleton.offsets.dtype)
-    bad = ~jnp.all(jnp.isfinite(raw), axis=-1)
-    rotations = _quat.unit_quaternions(raw)
-    J = skeleton.num_joints
-    if rotations.shape[-2:] != (J, 4):
-        raise ValueError(f"rotations must have shape (..., {J}, 4), got {rotations.shape}")
+    bad, L = _joint_rotations(skeleton, rotations)
     table = limit_table(skeleton)
     if table is None:
-        v = jnp.zeros(rotations.shape[:-1], rotations.dtype)
+        v = jnp.zeros(bad.shape, L[0][0].dtype)
     else:
-        v = jnp.stack([violation(_quat.unstack(rotations[..., i, :], axis=-1), table.joint(i)) for i in range(J)],
-                      axis=-1)
+        v = jnp.stack([violation(q, table.joint(i)) for i, q in enumerate(L)], axis=-1)
     return jnp.where(bad, jnp.inf, v)
 
 
@@ -323,11 +327,6 @@ def project_limits(skeleton, rotations) -> jax.Array:
     A rotation already within its limit is returned unchanged (up to rounding); one with
     a NaN or inf entry comes back as NaN (it has no nearest rotation in the limit).
     """
-    raw = jnp.asarray(rotations, skeleton.offsets.dtype)
-    bad = ~jnp.all(jnp.isfinite(raw), axis=-1, keepdims=True)
-    rotations = _quat.unit_quaternions(raw)
-    J = skeleton.num_joints
-    if rotations.shape[-2:] != (J, 4):
-        raise ValueError(f"rotations must have shape (..., {J}, 4), got {rotations.shape}")
-    L = project_all(limit_table(skeleton), [_quat.unstack(rotations[..., i, :], axis=-1) for i in range(J)])
-    return jnp.where(bad, jnp.nan, jnp.stack([_quat.stack(q, axis=-1) for q in L], axis=-2))
+    bad, L = _joint_rotations(skeleton, rotations)
+    L = project_all(limit_table(skeleton), L)
+    return jnp.where(bad[..., None], jnp.nan, jnp.stack([_quat.stack(q, axis=-1) for q in L], axis=-2))

@@ -30,7 +30,7 @@ import jax.numpy as jnp
 from jax.scipy.linalg import cho_factor, cho_solve
 
 from .._dataclass import pytree_dataclass
-from . import _quat
+from .._geometry import quat as _quat
 from ._limits import hinge_angle, project_all
 from ._loop import masked_sweeps
 from ._fk import fk_tree

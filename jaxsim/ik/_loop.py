@@ -13,7 +13,7 @@ import jax.numpy as jnp
 from jax import lax
 
 from .._dataclass import pytree_dataclass
-from . import _quat
+from .._geometry import quat as _quat
 
 
 @pytree_dataclass

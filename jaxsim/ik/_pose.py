@@ -7,7 +7,7 @@ import dataclasses
 
 import jax.numpy as jnp
 
-from . import _quat
+from .._geometry import quat as _quat
 from ._fk import fk_tree
 from ._limits import project
 from ._result import IKResult

@@ -88,6 +88,7 @@ def solve_ik(settings, model, targets, *, rotations=None, effectors=None, weight
 def _run(settings, model, inp: Inputs, topo, table, lean, *, trace, unroll, early_exit, stop) -> IKResult:
     """The selected kernel on the checked inputs (``stop``: no derivatives through it)."""
     batch, dtype, J = inp.batch, model.offsets.dtype, model.num_joints
+    n = int(np.prod(batch, dtype=np.int64))
     offsets, targets, rotations = model.offsets, inp.targets, inp.rotations
     if stop:  # the sweeps are not differentiated; see _implicit
         offsets, targets, rotations = (lax.stop_gradient(a) for a in (offsets, targets, rotations))
@@ -97,7 +98,6 @@ def _run(settings, model, inp: Inputs, topo, table, lean, *, trace, unroll, earl
     tol = jnp.asarray(settings.tol, dtype)
     kw = dict(max_iters=int(settings.max_iters), trace=trace, early_exit=early_exit)
     if lean:
-        n = int(np.prod(batch, dtype=np.int64))
         res = run_chain(offsets, jnp.moveaxis(targets[..., 0, :], -1, 0), jnp.moveaxis(rotations, (-2, -1), (0, 1)),
                         tol, alg=type(settings), unroll=_joints.unrolled(J, unroll, n), **kw)
         return _batch_last(res, batch)
@@ -107,7 +107,6 @@ def _run(settings, model, inp: Inputs, topo, table, lean, *, trace, unroll, earl
     tgt = jnp.moveaxis(targets, (-2, -1), (0, 1))
     start = bent_start(offsets, tgt, jnp.moveaxis(rotations, (-2, -1), (0, 1)), tol, topo=topo)
     if isinstance(settings, LevenbergMarquardt):  # LM too starts bent: on its target's line J^T r = 0
-        n = int(np.prod(batch, dtype=np.int64))
         rot = jnp.moveaxis(start, (0, 1), (-2, -1)).reshape((n, J, 4))
         res = run_lm(offsets, targets.reshape((n,) + targets.shape[-2:]), rot, inp.weights, tol, table,
                      None if orients is None else orients.reshape((n,) + orients.shape[-2:]), inp.orientation_weights,

@@ -11,30 +11,37 @@ import functools
 import jax.numpy as jnp
 import numpy as np
 
-from . import _quat
+from .._geometry import quat as _quat
 
 #: Bend applied to a chain lying on the line of its target (FABRIK paper, section 5.4).
 SYMMETRY_BREAK_ANGLE = 0.1
+
+
+def _bend(axis):
+    """The turn by ``SYMMETRY_BREAK_ANGLE`` about the unit vector tuple ``axis``."""
+    half = 0.5 * SYMMETRY_BREAK_ANGLE
+    return (jnp.full_like(axis[0], np.cos(half)), *_quat.scale(float(np.sin(half)), axis))
+
+
+def _chain_bend(root, end, target, off_line, reach, done, g_parent, local_m):
+    """``(need, r, joint m's bent local rotation)``; ``off_line(ray)``: the pose's largest distance to the line."""
+    to_target = _quat.sub(target, root)
+    ray = _quat.normalize(to_target, _quat.normalize(_quat.sub(end, root), _quat.perpendicular(to_target)))
+    r = _bend(_quat.perpendicular(ray))
+    need = (off_line(ray) <= 1e-6 * reach) & ~done
+    return need, r, _quat.mul(_quat.conj(g_parent), _quat.mul(r, _quat.mul(g_parent, local_m)))
 
 
 def break_symmetry_stacked(local, positions, frames, target, reach, done, batch_shape):
     """:func:`break_symmetry_chain` on the rolled loop's stacked ``(J, C, *B)`` arrays
     (``target`` a vector tuple); returns the new local rotations, the caller redoes FK.
     Its own form: through lists it took the rolled CCD solve from 116 to 124 fusions."""
-    J = local.shape[0]
-    root = _quat.unstack(positions[0])
-    to_target = _quat.sub(target, root)
-    chain_dir = _quat.normalize(_quat.sub(_quat.unstack(positions[J - 1]), root), _quat.perpendicular(to_target))
-    ray = _quat.normalize(to_target, chain_dir)
+    J, m = local.shape[0], (1 if local.shape[0] > 2 else 0)
     rel = _quat.unstack(positions - positions[:1], axis=1)  # tuple of (J, *B)
-    ray_j = tuple(c[None] for c in ray)
-    off_line = jnp.max(_quat.safe_norm(_quat.cross(rel, ray_j)), axis=0)
-    need = (off_line <= 1e-6 * reach) & ~done
-    m = 1 if J > 2 else 0
-    half = 0.5 * SYMMETRY_BREAK_ANGLE
-    r = (jnp.full(batch_shape, np.cos(half), local.dtype), *_quat.scale(float(np.sin(half)), _quat.perpendicular(ray)))
     g_parent = _quat.unstack(frames[m - 1]) if m > 0 else _quat.identity(batch_shape, local.dtype)
-    lm = _quat.mul(_quat.conj(g_parent), _quat.mul(r, _quat.mul(g_parent, _quat.unstack(local[m]))))
+    need, _, lm = _chain_bend(_quat.unstack(positions[0]), _quat.unstack(positions[J - 1]), target,
+                              lambda ray: jnp.max(_quat.safe_norm(_quat.cross(rel, tuple(c[None] for c in ray))), 0),
+                              reach, done, g_parent, _quat.unstack(local[m]))
     return jnp.where(need, local.at[m].set(_quat.stack(lm)), local)
 
 
@@ -47,19 +54,11 @@ def break_symmetry_chain(local, positions, frames, target, reach, done):
     ``P_k <- P_m + r (P_k - P_m)`` (``k > m``), applied where the pose needs it.  Entries
     may have no batch axis (a start pose shared by the batch); the bent ones gain it.
     """
-    J = len(local)
-    root = positions[0]
-    to_target = _quat.sub(target, root)
-    chain_dir = _quat.normalize(_quat.sub(positions[J - 1], root), _quat.perpendicular(to_target))
-    ray = _quat.normalize(to_target, chain_dir)
-    off_line = functools.reduce(jnp.maximum, [_quat.safe_norm(_quat.cross(_quat.sub(p, root), ray)) for p in positions])
-    need = (off_line <= 1e-6 * reach) & ~done
-    m = 1 if J > 2 else 0
-    half = 0.5 * SYMMETRY_BREAK_ANGLE
-    axis = _quat.perpendicular(ray)
-    r = (jnp.full_like(axis[0], np.cos(half)), *_quat.scale(float(np.sin(half)), axis))
+    J, root, m = len(local), positions[0], (1 if len(local) > 2 else 0)
     g_parent = frames[m - 1] if m > 0 else _quat.identity((), local[0][0].dtype)
-    lm = _quat.mul(_quat.conj(g_parent), _quat.mul(r, _quat.mul(g_parent, local[m])))
+    need, r, lm = _chain_bend(root, positions[J - 1], target, lambda ray: functools.reduce(
+        jnp.maximum, [_quat.safe_norm(_quat.cross(_quat.sub(p, root), ray)) for p in positions]), reach, done,
+        g_parent, local[m])
     local, positions, frames = list(local), list(positions), list(frames)
     local[m] = _quat.where(need, lm, local[m])
     pm = positions[m]
@@ -93,8 +92,6 @@ def break_symmetry_tree(topo, offsets, local, positions, frames, targets, tol):
     to the line (as :func:`break_symmetry_chain` does for chains).  Returns the new list of
     local rotations; the caller redoes FK.
     """
-    half = 0.5 * SYMMETRY_BREAK_ANGLE
-
     def parallel(u, v):
         return _quat.safe_norm(_quat.cross(u, v)) <= 1e-6 * _quat.safe_norm(u) * _quat.safe_norm(v)
 
@@ -114,8 +111,7 @@ def break_symmetry_tree(topo, offsets, local, positions, frames, targets, tol):
             pick = straight_below[i] & parallel(bones[i], to_target) & ~taken
             taken = taken | pick
             m = seg[i + 1] if len(seg) - i > 2 else seg[i]
-            axis = _quat.perpendicular(bones[i])
-            r = (jnp.full_like(axis[0], np.cos(half)), *_quat.scale(float(np.sin(half)), axis))
+            r = _bend(_quat.perpendicular(bones[i]))
             gp = frames[topo.parents[m]] if m > 0 else None
             turned = _quat.mul(r, local[m] if gp is None else _quat.mul(gp, local[m]))
             lm = turned if gp is None else _quat.mul(_quat.conj(gp), turned)

@@ -11,7 +11,8 @@ from jax import lax
 
 from .._dataclass import is_concrete
 from .._validate import check_real
-from . import _joints, _quat
+from .._geometry import quat as _quat
+from . import _joints
 from ._fk import joint_positions
 from ._inputs import check_flags, check_inputs, check_model
 from ._kernel import bent_start, run_chain, run_tree

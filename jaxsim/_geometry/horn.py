@@ -24,7 +24,7 @@ import jax.numpy as jnp
 from jax import lax
 
 from .._dtype import tiny
-from . import _quat
+from . import quat as _quat
 
 #: Squarings of ``M``: other eigenvalues are damped by ``ratio ** 2**SQUARINGS``.
 SQUARINGS = 12
