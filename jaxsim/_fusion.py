@@ -42,8 +42,8 @@ def materialized_rows(vectors):
     Where a chain of tuples feeds many consumers (the FK chain of a skeleton's start
     pose, read by every branch test and broadcast of ``ik._kernel.bent_start``), XLA fuses
     the whole chain into each of them: the humanoid's ``bent_start`` compiled in 10.7 s
-    (78,624 lines of optimised HLO), 6.0 s (23,858) with its FK written once
-    (docs/notebook.md).
+    (78,624 lines of optimised HLO), 6.0 s (23,858 lines) with its FK written once;
+    this helper gives 23,165 lines and 318 fusions (docs/notebook.md).
     """
     out, shapes = list(vectors), [jnp.broadcast_shapes(*map(jnp.shape, v)) for v in vectors]
     for shape in dict.fromkeys(shapes):  # e.g. the root's position: no batch axis
