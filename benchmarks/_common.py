@@ -2,10 +2,15 @@
 
 from __future__ import annotations
 
+import importlib
 import json
 import os
 import platform
+import shutil
 import statistics
+import subprocess
+import sys
+import tempfile
 import time
 
 import jax
@@ -13,6 +18,7 @@ import jax
 from jaxsim._host_memory import retained_limit
 
 RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
 def time_call(fn, *args, repeats: int = 7, min_time: float = 0.0, budget: float | None = None):
@@ -69,3 +75,31 @@ def write(name: str, payload: dict) -> str:
         json.dump(payload, f, indent=2)
     print(f"wrote {path}")
     return path
+
+
+def baseline_package(rev: str):
+    """``jaxsim`` at git revision ``rev``, imported as ``jaxsim_baseline`` (its imports are relative)."""
+    tmp = tempfile.mkdtemp(prefix="jaxsim_ab_")
+    tar = subprocess.run(["git", "-C", ROOT, "archive", rev, "jaxsim"], check=True, capture_output=True).stdout
+    subprocess.run(["tar", "-x", "-C", tmp], input=tar, check=True)
+    shutil.move(os.path.join(tmp, "jaxsim"), os.path.join(tmp, "jaxsim_baseline"))
+    sys.path.insert(0, tmp)
+    return importlib.import_module("jaxsim_baseline")
+
+
+def run_once(fn, arg) -> float:
+    """Seconds for one call of ``fn(arg)``, to ``block_until_ready``."""
+    t0 = time.perf_counter()
+    jax.block_until_ready(fn(arg))
+    return time.perf_counter() - t0
+
+
+def ab_arguments():
+    """The A/B benchmarks' parser: ``--baseline`` (a git revision, default ``HEAD``) and ``--rounds``."""
+    import argparse
+
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--baseline", default="HEAD",
+                    help="git revision to compare against (default HEAD: the working tree against its last commit)")
+    ap.add_argument("--rounds", type=int, default=5)
+    return ap

@@ -2,7 +2,7 @@
 
 ``jaxsim._fusion.materialized`` returns an array through a conditional so that XLA:CPU
 writes it once instead of recomputing it inside every consumer (the spring changes,
-directions, stretches and forces of ``_problem.spring_terms``, the per-spring forces
+directions, stretches and forces of ``_implicit.problem.spring_terms``, the per-spring forces
 before their sums, and the preconditioner's diagonal blocks).  This script compiles the
 same 10-step rollout with ``jaxsim._fusion.ENABLED`` on and off and times the two in
 alternation, so that both see the same machine load: median ms per step, the paired

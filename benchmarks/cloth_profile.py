@@ -4,7 +4,7 @@ Scene: the B 32x32 grid (lab parameters), float64, positions perturbed by 1 cm. 
 is jit-compiled alone and timed warm (median of repeats, compile apart), next to the
 baseline of an elementwise no-op on the same array.  The CG operator ``H p`` is timed both
 ways: by the grid operator (shifted slices, what a grid scene uses) and by the general one
-(gathers through ``Cloth.incidence``, the same scene with its springs in another order), each
+(gathers through ``ParticleLayout.incidence``, the same scene with its springs in another order), each
 alone and as 50 applications inside one ``fori_loop`` (per application, without the
 dispatch cost).
 
@@ -27,11 +27,11 @@ from _common import time_call, write  # noqa: E402
 
 import jaxsim  # noqa: E402
 from jaxsim import cloth as C  # noqa: E402
-from jaxsim.cloth import _energy as en  # noqa: E402
-from jaxsim.cloth._scene import spring_diff, spring_sum  # noqa: E402
+from jaxsim.cloth._model import energy as en  # noqa: E402
+from jaxsim.cloth._layout import layout_of, spring_diff, spring_sum  # noqa: E402
 from jaxsim.cloth._vec import matvec  # noqa: E402
-from jaxsim.cloth._hessian import block_jacobi  # noqa: E402
-from jaxsim.cloth._problem import StepProblem, gradient, incremental_potential, objective, spring_terms  # noqa: E402
+from jaxsim.cloth._implicit.hessian import block_jacobi  # noqa: E402
+from jaxsim.cloth._implicit.problem import StepProblem, gradient, incremental_potential, objective, spring_terms  # noqa: E402
 
 
 def main() -> None:
@@ -44,7 +44,8 @@ def main() -> None:
     i, j = c.springs[:, 0], c.springs[:, 1]
     perm = np.random.default_rng(0).permutation(c.num_springs)  # no grid layout: the general operator
     g = C.replace(c, springs=np.asarray(c.springs)[perm], rest_length=c.rest_length[perm], stiffness=c.stiffness[perm])
-    assert c.stencil is not None and g.stencil is None
+    lc, lg = layout_of(c.springs, c.rest), layout_of(g.springs, g.rest)
+    assert type(lc).__name__ == "PlanarLayout" and type(lg).__name__ == "ParticleLayout"
     A = en.element_blocks(c, x, None, project_psd=True)
 
     def analytic_blocks(x):
@@ -62,8 +63,8 @@ def main() -> None:
             (lambda u: (lambda t: (objective(u, p, t), gradient(u, p, t), t))(spring_terms(u, p)), u),
         "spring blocks, radial form by autodiff (+ PSD)": (lambda x: en.element_blocks(c, x, None, project_psd=True), x),
         "spring blocks, closed form (reference only)": (analytic_blocks, x),
-        "CG operator H p (grid operator)": (lambda p: spring_sum(c, matvec(A, spring_diff(c, p))), x),
-        "CG operator H p (general, gathers)": (lambda p: spring_sum(g, matvec(A[perm], spring_diff(g, p))), x),
+        "CG operator H p (grid operator)": (lambda p: spring_sum(c, matvec(A, spring_diff(c, p, lc)), layout=lc), x),
+        "CG operator H p (general, gathers)": (lambda p: spring_sum(g, matvec(A[perm], spring_diff(g, p, lg)), layout=lg), x),
         "block-Jacobi setup + apply": (lambda A: block_jacobi(p, A)(x), A),
     }
     rows = []

@@ -1,6 +1,6 @@
 """Cloth step cost and accuracy: dense vs CG vs one-Newton vs explicit, against scipy.sparse.
 
-The stiff scenes C also run CG with the two-level preconditioner (``_coarse``); dense
+The stiff scenes C also run CG with the two-level preconditioner (``_implicit.coarse``); dense
 steps run on A and B 32x32 only.  CG rows use a fixed
 tolerance ``CG.tol`` (``CG(forcing=0)``), and the "default forcing" rows the default
 inexact-Newton forcing term (``forcing=1e-2``, ``tol=1e-6``: what

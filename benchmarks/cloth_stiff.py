@@ -5,7 +5,7 @@ Scene C: a 32x32 grid of total mass 1 (spacing 0.2, g = 9.8, dt = 1/30), k = 1e3
 exact Hessian, projected only where it is not positive definite) against ``True`` (every
 compression eigenvalue clamped, the lab's choice), each with the block-Jacobi
 preconditioner; and the default projection with the two-level preconditioner
-(``_coarse``), also on a 64x64 grid (float64).  Every row uses the default forcing
+(``_implicit.coarse``), also on a 64x64 grid (float64).  Every row uses the default forcing
 term ``cg_forcing=1e-2``; the ``forcing`` rows compare it with a fixed CG tolerance
 (``cg_forcing=0``) on scene B 32x32 and C 32x32.  Reports Newton and CG iterations per
 step and the share of steps converged (``StepInfo.converged``: the gradient test); ms per

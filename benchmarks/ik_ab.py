@@ -18,14 +18,9 @@ Run: ``python benchmarks/ik_ab.py --baseline 93626e0 [--rounds 5]``; writes
 
 from __future__ import annotations
 
-import argparse
-import importlib
 import os
-import shutil
 import statistics
-import subprocess
 import sys
-import tempfile
 import time
 
 import jax
@@ -33,21 +28,9 @@ import jax.numpy as jnp
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(__file__))
-from _common import write  # noqa: E402
+from _common import ab_arguments, baseline_package, run_once, write  # noqa: E402
 
 import jaxsim  # noqa: E402
-
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-
-
-def baseline_package(rev: str):
-    """``jaxsim`` at git revision ``rev``, imported as ``jaxsim_baseline`` (its imports are relative)."""
-    tmp = tempfile.mkdtemp(prefix="jaxsim_ab_")
-    tar = subprocess.run(["git", "-C", ROOT, "archive", rev, "jaxsim"], check=True, capture_output=True).stdout
-    subprocess.run(["tar", "-x", "-C", tmp], input=tar, check=True)
-    shutil.move(os.path.join(tmp, "jaxsim"), os.path.join(tmp, "jaxsim_baseline"))
-    sys.path.insert(0, tmp)
-    return importlib.import_module("jaxsim_baseline")
 
 
 def random_poses(rng, shape, amp=np.pi):
@@ -90,17 +73,8 @@ def cases(pkg, n_chain, n_sets):
     return out
 
 
-def run_once(fn, arg):
-    t0 = time.perf_counter()
-    jax.block_until_ready(fn(arg))
-    return time.perf_counter() - t0
-
-
 def main():
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--baseline", default="HEAD",
-                    help="git revision to compare against (default HEAD: the working tree against its last commit)")
-    ap.add_argument("--rounds", type=int, default=5)
+    ap = ab_arguments()
     ap.add_argument("--n", type=int, default=100_000, help="chain targets")
     ap.add_argument("--sets", type=int, default=10_000, help="free-humanoid target sets")
     ap.add_argument("--only", default=None, help="run only the cases whose name contains this")

@@ -13,6 +13,7 @@ from jaxsim import cloth as C
 from jaxsim import ik
 from jaxsim._report._humanoid import random_poses
 from jaxsim.cloth import _step
+from jaxsim.cloth._layout import layout_of
 
 #: Tolerances per dtype for quantities of order one.
 TOL = {np.dtype(np.float32): 1e-5, np.dtype(np.float64): 1e-10}
@@ -38,7 +39,8 @@ def all_eqns(jaxpr):
 def step_jaxpr(cloth, integ):
     """The jaxpr of one compiled cloth step of ``cloth`` with ``integ``."""
     fn = functools.partial(_step._step.__wrapped__, integrator=integ)
-    return jax.make_jaxpr(fn)(cloth, C.State.at_rest(cloth), jnp.asarray(1 / 60, cloth.dtype)).jaxpr
+    layout = layout_of(cloth.springs, cloth.rest)
+    return jax.make_jaxpr(fn)(cloth, layout, C.State.at_rest(cloth), jnp.asarray(1 / 60, cloth.dtype)).jaxpr
 
 
 def stiff_grid(n, k=1e3, dtype=np.float64, pins=None):

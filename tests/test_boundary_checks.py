@@ -126,11 +126,7 @@ def test_batch_rollout_checks_stacked_scenes():
            1 / 60, 3)
     bad = C.stack_scenes([c, C.replace(c, damping=0.5)])
     bad = jax.tree_util.tree_map(lambda a: a, bad)
-    from jaxsim.cloth._batch import _unchecked
-
-    neg = _unchecked(bad, {**{f: getattr(bad, f) for f in ("rest", "springs", "rest_length", "stiffness", "pinned",
-                                                          "gravity", "damping", "incidence", "aggregates")},
-                           "mass": bad.mass.at[1, 3].set(-1.0)})
+    neg = C.replace(bad, mass=bad.mass.at[1, 3].set(-1.0))  # a batch is checked by batch_rollout
     raises("batched scene mass must be > 0", C.batch_rollout, neg, s0, 1 / 60, 3)
     raises("n_steps must be an int", C.batch_rollout, stacked, s0, 1 / 60, 3.0)
     raises("this scene is batched", C.step, stacked, s0, 1 / 60)

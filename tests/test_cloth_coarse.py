@@ -1,36 +1,48 @@
 """The two-level preconditioner: aggregation, symmetry and definiteness, and the step it serves."""
 
-import dataclasses
-
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from jaxsim import cloth as C
-from jaxsim.cloth import _coarse, _problem
-from jaxsim.cloth._hessian import block_jacobi, particle_blocks
+from jaxsim.cloth._implicit import coarse as _coarse
+from jaxsim.cloth._implicit import problem as _problem
+from jaxsim.cloth._implicit.hessian import block_jacobi, particle_blocks
+from jaxsim.cloth._layout import PlanarLayout, batch_layout, layout_of, spring_sum
+from jaxsim.cloth._layout import aggregates as agg
 
 from _helpers import stiff_grid
+
+
+def aggregates(c):
+    """``(ids (N,), count)``: the two-level preconditioner's aggregates of ``c``'s layout."""
+    lay = layout_of(c.springs, c.rest)
+    if isinstance(lay, PlanarLayout):
+        return agg.block_ids(lay.stencil.rows, lay.stencil.cols, lay.block), lay.num_aggregates
+    return np.asarray(lay.aggregates), lay.num_aggregates
 
 
 def test_aggregates_partition_the_particles():
     for n in (1, 3, 10, 31):
         c = C.grid(n, 0.2)
-        ids = np.asarray(c.aggregates)
-        assert ids.shape == (c.num_particles,) and c.num_aggregates <= _coarse.MAX_AGGREGATES
-        assert set(ids.tolist()) == set(range(c.num_aggregates))  # every aggregate is used
-    sizes = np.bincount(np.asarray(C.grid(31, 0.2).aggregates))
+        ids, count = aggregates(c)
+        assert ids.shape == (c.num_particles,) and count <= agg.MAX_AGGREGATES
+        assert set(ids.tolist()) == set(range(count))  # every aggregate is used
+    sizes = np.bincount(aggregates(C.grid(31, 0.2))[0])
     assert sizes.tolist() == [16] * 64  # 4 x 4 blocks on the 32 x 32 grid
     # a mesh that is not a grid, and a line of particles
-    ids, count = _coarse.aggregate(np.random.default_rng(0).normal(size=(500, 3)), 10)
+    ids, count = agg.aggregate(np.random.default_rng(0).normal(size=(500, 3)), 10)
     assert count <= 10 and ids.min() == 0 and ids.max() == count - 1
-    ids, count = _coarse.aggregate(np.c_[np.arange(100.0), np.zeros(100), np.zeros(100)], 8)
+    ids, count = agg.aggregate(np.c_[np.arange(100.0), np.zeros(100), np.zeros(100)], 8)
     assert count <= 8 and np.all(np.diff(ids) >= 0)
-    assert _coarse.aggregate(np.zeros((1, 3)))[1] == 1
-    c = C.grid(5, 0.2)
-    with pytest.raises(ValueError, match="aggregates must be integer ids"):
-        dataclasses.replace(c, aggregates=np.full(c.num_particles, 99), num_aggregates=4)
+    assert agg.aggregate(np.zeros((1, 3)))[1] == 1
+    disk = C.from_mesh(*C.read_obj(C.TABLECLOTH_OBJ))
+    ids, count = aggregates(disk)
+    assert set(ids.tolist()) == set(range(count)) and count <= agg.MAX_AGGREGATES
+    # springs or a rest shape only known inside jit: runs of particle ids, still a partition
+    lay = jax.jit(lambda s, r: layout_of(s, r).aggregates)(disk.springs, disk.rest)
+    assert set(np.asarray(lay).tolist()) == set(range(agg.MAX_AGGREGATES)) and np.all(np.diff(np.asarray(lay)) >= 0)
 
 
 @pytest.mark.parametrize("pins", [None, [0, 1, 2, 3, 4, 5, 6, 7]])  # a whole aggregate pinned, too
@@ -43,17 +55,18 @@ def test_two_level_is_symmetric_positive_definite(pins):
     A = _problem.blocks(w, p, project_psd=True)
     free = p.free
     N = c.num_particles
-    factor = _coarse.coarse_factor(c.aggregates, c.num_aggregates, c.springs, A, particle_blocks(p), free[:, 0],
-                                   _coarse.least_mass(jax.ops.segment_sum(c.mass * free[:, 0], c.aggregates,
-                                                                          c.num_aggregates), p.h))
+    ids, count = aggregates(c)
+    ids = jnp.asarray(ids)
+    factor = _coarse.coarse_factor(ids, count, c.springs, A, particle_blocks(p), free[:, 0],
+                                   _coarse.least_mass(jax.ops.segment_sum(c.mass * free[:, 0], ids, count), p.h))
     i, j = c.springs[:, 0], c.springs[:, 1]
 
     def operator(v):  # the CG operator: identity on pins
         w = v * free
-        out = C._scene.spring_sum(c, jnp.einsum("sab,sb->sa", A, w[j] - w[i])) + (c.mass / p.h**2)[:, None] * w
+        out = spring_sum(c, jnp.einsum("sab,sb->sa", A, w[j] - w[i])) + (c.mass / p.h**2)[:, None] * w
         return out * free + (1.0 - free) * v
 
-    coarse = _coarse.coarse_correction(c.aggregates, c.num_aggregates, factor, free)
+    coarse = _coarse.coarse_correction(ids, count, factor, free)
     M = _coarse.two_level(coarse, block_jacobi(p, A), operator)
     E = jnp.eye(3 * N).reshape(3 * N, N, 3)
     Mdense = np.asarray(jax.vmap(M)(E).reshape(3 * N, 3 * N))
@@ -82,8 +95,10 @@ def test_coarse_cholesky_factors_in_float32_and_shifts_only_where_ill_conditione
     x0 = s.x + 0.01 * jax.random.normal(jax.random.PRNGKey(1), s.x.shape, dtype)
     p = _problem.StepProblem.build(c, x0, s.v, jnp.asarray(1 / 30, dtype))
     A = _problem.blocks(jnp.zeros_like(x0), p, project_psd=True)
-    Ac = _coarse.coarse_matrix(c.aggregates, c.num_aggregates, c.springs, A, particle_blocks(p), p.free[:, 0])
-    lam_min = _coarse.least_mass(jax.ops.segment_sum(c.mass * p.free[:, 0], c.aggregates, c.num_aggregates), p.h)
+    ids, count = aggregates(c)
+    ids = jnp.asarray(ids)
+    Ac = _coarse.coarse_matrix(ids, count, c.springs, A, particle_blocks(p), p.free[:, 0])
+    lam_min = _coarse.least_mass(jax.ops.segment_sum(c.mass * p.free[:, 0], ids, count), p.h)
     ev = np.linalg.eigvalsh(np.asarray(Ac, np.float64))
     assert lam_min <= ev.min() + 64 * np.finfo(dtype).eps * ev.max()  # the bound holds (exactly, for a free translation)
     L, lower = jax.jit(_coarse.cholesky)(Ac, lam_min)
@@ -137,7 +152,7 @@ def test_scene_c_k1e5_hard_step_converges_within_the_default_cap():
     where the exact Hessian stays indefinite for dozens of Newton iterations.  Falling back
     on the clamped Hessian alone, Newton crept at a relative gradient of 1e-6-1e-5 and
     needed 65 iterations (the default cap is 20); with the shifted exact Hessian first
-    (``_newton.SHIFT``) every one of these steps converges within the cap."""
+    (``direction.SHIFT``) every one of these steps converges within the cap."""
     c = stiff_grid(31, k=1e5)
     integ = C.ImplicitEuler(linear_solver=C.CG(C.TwoLevel()))
     _, info = jax.jit(lambda s: C.rollout(c, s, 1 / 30, 5, integ))(C.State.at_rest(c))
@@ -168,7 +183,7 @@ def test_preconditioner_setting_is_checked():
 def test_batched_scenes_carry_aggregates():
     a, b = stiff_grid(5), stiff_grid(5, k=2e3)
     batch = C.stack_scenes([a, b])
-    assert batch.aggregates.shape == (2, a.num_particles) and batch.num_aggregates == a.num_aggregates
+    assert batch_layout(batch.springs, batch.rest) == (layout_of(a.springs, a.rest), False)  # one shared layout
     integ = C.ImplicitEuler(linear_solver=C.CG(C.TwoLevel()))
     states, info = C.batch_rollout(batch, C.State.at_rest(a), 1 / 30, 2, integ)
     assert np.all(np.asarray(info.converged))

@@ -1,4 +1,4 @@
-"""Colliders, IPC barrier contact and lagged friction (jaxsim.cloth._colliders, _contact)."""
+"""Colliders, IPC barrier contact and lagged friction (jaxsim.cloth._model.colliders, _contact)."""
 
 import jax
 import jax.numpy as jnp
@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 from jax.test_util import check_grads
 
 from jaxsim import cloth as C
-from jaxsim.cloth import _contact
+from jaxsim.cloth._implicit import contact as _contact
 from _helpers import all_eqns, step_jaxpr
 
 SPHERE_C = np.array([0.0, 0.5, 0.0])
@@ -80,7 +80,7 @@ def test_barrier_values_slope_and_nan_free_gradient():
 
 
 def test_contact_blocks_are_the_projected_autodiff_hessian():
-    from jaxsim.cloth import _problem
+    from jaxsim.cloth._implicit import problem as _problem
 
     rng = np.random.default_rng(3)
     for col in (C.Plane(np.array([0.0, 1.0, 0.0]), 0.499, friction=0.3), C.Sphere(np.zeros(3), 0.4995, friction=0.4),

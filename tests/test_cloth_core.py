@@ -143,7 +143,7 @@ def test_linear_solver_settings_and_their_old_keywords():
 
 def test_radial_blocks_equal_element_hessian():
     """The radial form ``psi'' e e^T + psi'/l (I - e e^T)`` (+ damping) is jax.hessian of the element."""
-    from jaxsim.cloth import _energy as en
+    from jaxsim.cloth._model import energy as en
 
     rng = np.random.default_rng(7)
     S = 64
@@ -176,7 +176,7 @@ def test_radial_blocks_equal_element_hessian():
 def test_radial_gradient_and_scale_equal_autodiff_of_the_objective(scene):
     """Newton's gradient (per-spring forces ``psi'(s) e`` + damping, summed at both ends)
     is ``jax.grad`` of the one objective, and its force scale is the one computed alone."""
-    from jaxsim.cloth import _problem as pr
+    from jaxsim.cloth._implicit import problem as pr
 
     c = C.lab_cloth(dtype=np.float64)
     if scene == "undamped":

@@ -1,4 +1,4 @@
-"""Cloth from triangle meshes, and OBJ input/output (jaxsim.cloth._mesh, _obj)."""
+"""Cloth from triangle meshes, and OBJ input/output (jaxsim.cloth._model.mesh, _obj)."""
 
 import numpy as np
 import pytest

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from jaxsim import cloth as C
-from jaxsim.cloth import _problem as pr
-from jaxsim.cloth._energy import forces
+from jaxsim.cloth._implicit import problem as pr
+from jaxsim.cloth._model.energy import forces
 from jaxsim.cloth._explicit import damping_forces
-from jaxsim.cloth._extrapolate import SMOOTH_NEWTON, History, acceleration
+from jaxsim.cloth._implicit.extrapolate import SMOOTH_NEWTON, History, acceleration
 from jaxsim.cloth._step import _implicit
 
 DT = 1 / 60

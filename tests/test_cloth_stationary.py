@@ -1,4 +1,4 @@
-"""Newton's stationary-point steps (``_newton.STATIONARY_REL``) and PCG through negative curvature."""
+"""Newton's stationary-point steps (``_implicit.newton.STATIONARY_REL``) and PCG through negative curvature."""
 
 import dataclasses
 import pytest
@@ -9,7 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxsim import cloth as C
-from jaxsim.cloth._linsolve import pcg
+from jaxsim.cloth._implicit.linsolve import pcg
 
 from _helpers import stiff_grid
 
@@ -101,7 +101,7 @@ def test_a_stationary_phase_converges_where_its_first_step_raises_the_gradient(m
     gradient (6.6e-9 to 2.8e-6) before the next ones converge quadratically.  Single
     stationary-point tries (the first rejected) left the step at the 20-iteration cap;
     the phase converges within it, to positions that solve backward Euler's equations."""
-    from jaxsim.cloth import _newton
+    from jaxsim.cloth._implicit import newton as _newton
 
     c = stiff_grid(31, k=1e5)
     h = 1 / 30

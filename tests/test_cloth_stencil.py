@@ -1,4 +1,4 @@
-"""The grid operator (``_stencil``): found automatically, and equal to the general one."""
+"""The grid operator (``_layout.stencil``): found automatically, and equal to the general one."""
 
 import dataclasses
 
@@ -8,14 +8,31 @@ import numpy as np
 import pytest
 
 from jaxsim import cloth as C
-from jaxsim.cloth import _coarse
-from jaxsim.cloth import _energy as en
-from jaxsim.cloth import _planes as pl
-from jaxsim.cloth._linsolve import block_inverse
-from jaxsim.cloth._scene import spring_diff, spring_sum
-from jaxsim.cloth._stencil import Stencil, detect
+from jaxsim.cloth._implicit import coarse as _coarse
+from jaxsim.cloth._model import energy as en
+from jaxsim.cloth._layout import planes as pl
+from jaxsim.cloth._implicit.linsolve import block_inverse
+from jaxsim.cloth._layout import ParticleLayout, PlanarLayout, batch_layout, layout_of
+from jaxsim.cloth._layout import aggregates as agg
+from jaxsim.cloth._layout import spring_diff as _diff
+from jaxsim.cloth._layout import spring_sum as _sum
+from jaxsim.cloth._layout.stencil import Stencil, detect
 from jaxsim.cloth._vec import matvec
 from _helpers import all_eqns, step_jaxpr
+
+
+def stencil_of(c):
+    """The grid layout that the solver finds for ``c``, or ``None``."""
+    lay = layout_of(c.springs, c.rest)
+    return lay.stencil if isinstance(lay, PlanarLayout) else None
+
+
+def spring_diff(c, v):
+    return _diff(c, v, layout_of(c.springs, c.rest))
+
+
+def spring_sum(c, f, signed=True):
+    return _sum(c, f, signed, layout_of(c.springs, c.rest))
 
 
 def permuted(c, seed=0):
@@ -37,8 +54,9 @@ def numpy_sum(springs, f, n, signed):
 def test_grid_scenes_get_the_grid_operator(n):
     c = C.grid(n, dtype=np.float64)
     m = n + 1
-    assert c.stencil is not None and (c.stencil.rows, c.stencil.cols) == (m, m)
-    np.testing.assert_array_equal(c.stencil.springs(), np.asarray(c.springs))
+    st = stencil_of(c)
+    assert st is not None and (st.rows, st.cols) == (m, m)
+    np.testing.assert_array_equal(st.springs(), np.asarray(c.springs))
     # the families keep grid_springs' kinds, pairs and counts
     springs, kind = C.grid_springs(n)
     np.testing.assert_array_equal(springs, np.asarray(c.springs))
@@ -48,10 +66,10 @@ def test_grid_scenes_get_the_grid_operator(n):
 
 def test_other_layouts_keep_the_general_operator():
     lab = C.lab_cloth(dtype=np.float64)
-    assert lab.stencil is not None
-    assert permuted(lab)[0].stencil is None
+    assert stencil_of(lab) is not None
+    assert stencil_of(permuted(lab)[0]) is None
     disk = C.from_mesh(*C.read_obj(C.TABLECLOTH_OBJ), dtype=np.float64)
-    assert disk.stencil is None
+    assert stencil_of(disk) is None
     assert detect(np.zeros((0, 2), int), 4) is None
     # the springs with one spring removed are no longer whole families
     assert detect(np.asarray(lab.springs)[1:], lab.num_particles) is None
@@ -62,10 +80,11 @@ def test_replacing_springs_recomputes_the_layout():
     shuffled, perm = permuted(lab)
     back = C.replace(shuffled, springs=np.asarray(shuffled.springs)[np.argsort(perm)],
                      rest_length=lab.rest_length, stiffness=lab.stiffness)
-    assert back.stencil == lab.stencil
-    # a stale layout handed to the constructor is checked against the springs
-    fake = Stencil(11, 11, ((-1, 0),))
-    assert C.replace(lab, stencil=fake).stencil == lab.stencil
+    assert stencil_of(back) == stencil_of(lab)
+    # the layout follows the springs alone: the shuffled scene gathers through its own incidence
+    lay = layout_of(shuffled.springs, shuffled.rest)
+    assert isinstance(lay, ParticleLayout) and lay.incidence.shape[0] == lab.num_particles
+    assert layout_of(shuffled.springs, shuffled.rest) is lay  # built once per topology
 
 
 def unusual_grid():
@@ -77,7 +96,7 @@ def unusual_grid():
     L = np.linalg.norm(rest[springs[:, 1]] - rest[springs[:, 0]], axis=1)
     c = C.Cloth(rest=rest, springs=springs, rest_length=L, stiffness=np.full(len(L), 10.0), mass=np.ones(35),
                 pinned=np.zeros(35, bool), gravity=np.zeros(3), damping=np.asarray(0.1))
-    assert c.stencil == st
+    assert stencil_of(c) == st
     return c, st, springs
 
 
@@ -97,7 +116,7 @@ def test_grid_operator_equals_gathers_and_numpy(shape, signed):
 
 @pytest.mark.parametrize("project_psd", [False, True])
 def test_planes_equal_the_particle_layout(project_psd):
-    """PCG's planar layout (``_planes``): blocks, operator, block sums and block inverses
+    """PCG's planar layout (``_layout.planes``): blocks, operator, block sums and block inverses
     equal the ``(N, 3)`` ones, including a compressed spring's negative eigenvalue."""
     c, st, springs = unusual_grid()
     rng = np.random.default_rng(3)
@@ -170,8 +189,11 @@ def test_grid_step_compiles_without_gathers_or_scatters():
 def test_stacked_scenes_keep_a_shared_layout():
     a = C.grid(4, dtype=np.float64)
     b = C.replace(a, stiffness=50.0)
-    assert C.stack_scenes([a, b]).stencil == a.stencil
-    assert C.stack_scenes([a, permuted(a)[0]]).stencil is None
+    same = C.stack_scenes([a, b])
+    assert batch_layout(same.springs, same.rest) == (layout_of(a.springs, a.rest), False)
+    mixed = C.stack_scenes([a, permuted(a)[0]])
+    lay, batched = batch_layout(mixed.springs, mixed.rest)
+    assert batched and isinstance(lay, ParticleLayout) and lay.incidence.shape[:2] == (2, a.num_particles)
 
 
 @pytest.mark.slow
@@ -179,7 +201,7 @@ def test_contact_steps_on_planes_equal_the_general_operator():
     """A grid over a sphere: the contact blocks join PCG's planes."""
     c = C.grid(6, 0.05, origin=(-0.15, 0.12, -0.15), gravity=9.8, pins=[], dtype=np.float64,
                colliders=(C.Sphere(np.zeros(3), 0.1),))
-    assert c.stencil is not None
+    assert stencil_of(c) is not None
     gen, _ = permuted(c)
     integ = C.ImplicitEuler(linear_solver=C.CG())
     a, ia = C.rollout(c, C.State.at_rest(c), 1 / 60, 8, integ)
@@ -193,7 +215,7 @@ def test_contact_steps_on_planes_equal_the_general_operator():
 @pytest.mark.parametrize("b", [2, 3])
 def test_coarse_space_on_planes_equals_the_general_one(b):
     """The two-level preconditioner's coarse matrix and correction on grid blocks
-    (``_planes``) equal the general Galerkin product over the same aggregates, with partial
+    (``_layout.planes``) equal the general Galerkin product over the same aggregates, with partial
     blocks, pins (a block of pins too) and families reaching across two blocks."""
     c, st, springs = unusual_grid()
     pinned = np.zeros(35, bool)
@@ -205,7 +227,7 @@ def test_coarse_space_on_planes_equals_the_general_one(b):
     A = en.radial_blocks(*map(jnp.asarray, (e, rng.uniform(0.5, 2.0, S), rng.uniform(0.0, 1.0, S))), project_psd=True)
     free = (~pinned).astype(np.float64)
     diag = spring_sum(c, A, signed=False) + jnp.asarray(rng.uniform(1.0, 2.0, 35))[:, None, None] * jnp.eye(3)
-    ids = _coarse.block_ids(st.rows, st.cols, b)
+    ids = agg.block_ids(st.rows, st.cols, b)
     count = int(ids.max()) + 1
     ref = _coarse.coarse_matrix(jnp.asarray(ids), count, c.springs, A, diag - spring_sum(c, A, signed=False),
                                 jnp.asarray(free))
@@ -220,11 +242,37 @@ def test_coarse_space_on_planes_equals_the_general_one(b):
 
 def test_grid_scenes_take_block_aggregates():
     c = C.grid(31, 0.2)
-    assert c.coarse_block == 4 and c.num_aggregates == 64
-    np.testing.assert_array_equal(c.aggregates, _coarse.block_ids(32, 32, 4))
+    lay = layout_of(c.springs, c.rest)
+    assert isinstance(lay, PlanarLayout) and lay.block == 4 and lay.num_aggregates == 64
     lab = C.lab_cloth()
-    assert lab.coarse_block == _coarse.grid_block(11, 11) and lab.num_aggregates <= _coarse.MAX_AGGREGATES
-    other = dataclasses.replace(c, aggregates=np.arange(c.num_particles) % 64, num_aggregates=64)
-    assert other.coarse_block == 0  # other aggregates: the general coarse space
+    lay = layout_of(lab.springs, lab.rest)
+    assert lay.block == agg.grid_block(11, 11) and lay.num_aggregates <= agg.MAX_AGGREGATES
     gen, _ = permuted(c)
-    assert gen.stencil is None and gen.coarse_block == 0
+    lay = layout_of(gen.springs, gen.rest)  # the general coarse space: voxel cells
+    assert isinstance(lay, ParticleLayout) and lay.num_aggregates <= agg.MAX_AGGREGATES
+    np.testing.assert_array_equal(lay.aggregates, agg.aggregate(np.asarray(gen.rest))[0])
+
+
+def test_the_scene_holds_physics_and_the_layout_is_derived_apart():
+    """``Cloth`` has no solver caches; ``layout_of`` derives them, once per topology."""
+    fields = {f.name for f in dataclasses.fields(C.Cloth)}
+    assert fields == {"rest", "springs", "rest_length", "stiffness", "mass", "pinned", "gravity", "damping", "damped",
+                      "colliders", "contact_gap", "contact_stiffness"}
+    lab, again = C.lab_cloth(dtype=np.float64), C.lab_cloth(dtype=np.float64)
+    assert layout_of(lab.springs, lab.rest) == layout_of(again.springs, again.rest)  # found by content
+    assert isinstance(layout_of(lab.springs, lab.rest), PlanarLayout)
+
+
+def test_a_scene_traced_whole_steps_as_a_concrete_one():
+    """Under ``jit`` over the whole scene the springs are not known: the step sums by
+    scatter-adds (a ``ParticleLayout`` without incidence) and gives the same state."""
+    lab = C.lab_cloth(dtype=np.float64)
+    s = C.State.at_rest(lab)
+    integ = C.ImplicitEuler(linear_solver=C.CG())
+    want, info = C.step(lab, s, 1 / 60, integ)
+    got, info_j = jax.jit(lambda c: C.step(c, s, 1 / 60, integ))(lab)
+    np.testing.assert_allclose(got.x, want.x, rtol=0, atol=1e-12)
+    assert int(info_j.newton_iters) == int(info.newton_iters) and bool(info_j.converged)
+    traced = []
+    jax.eval_shape(lambda c: traced.append(layout_of(c.springs, c.rest)), lab)
+    assert isinstance(traced[0], ParticleLayout) and traced[0].incidence is None

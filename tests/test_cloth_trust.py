@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from jaxsim import cloth as C
-from jaxsim.cloth import _problem
+from jaxsim.cloth._implicit import problem as _problem
 
 
 def mean_drop(c, states):
@@ -212,7 +212,7 @@ def test_stretch_increment_has_no_cancellation():
     """|d0 + dd| - |d0| for dd far below eps |d0|: exact to float32 rounding of the result."""
     d0 = jnp.asarray([[0.2, 0.0, 0.0]], jnp.float32)
     dd = jnp.asarray([[3e-10, 1e-10, 0.0]], jnp.float32)
-    from jaxsim.cloth import _energy
+    from jaxsim.cloth._model import energy as _energy
 
     got = float(_energy.stretch_increment(d0, jnp.linalg.norm(d0, axis=-1), dd)[0])
     want = float(np.linalg.norm(np.float64([0.2 + 3e-10, 1e-10, 0.0])) - 0.2)
@@ -257,7 +257,7 @@ def test_auto_projection_falls_back_on_an_indefinite_hessian():
         g1 = float(_problem.incremental_potential(s.x - s0.x - p.prediction, p))
         assert g1 < g0  # descent, despite the indefinite exact Hessian
     # the compressed springs' exact blocks are indeed indefinite there
-    from jaxsim.cloth import _energy
+    from jaxsim.cloth._model import energy as _energy
 
     A = _energy.element_blocks(c, x0, project_psd=False)
     assert float(jnp.min(jnp.linalg.eigvalsh(A))) < 0

@@ -8,7 +8,7 @@ from jax.test_util import check_grads
 
 from jaxsim import _fusion
 from jaxsim import cloth as C
-from jaxsim.cloth import _problem as pr
+from jaxsim.cloth._implicit import problem as pr
 
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])

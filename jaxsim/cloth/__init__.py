@@ -1,18 +1,18 @@
 """Mass-spring cloth: one energy definition, implicit Euler by Newton (dense or CG), explicit baseline."""
 
 from ._batch import batch_rollout, stack_scenes
-from ._colliders import Capsule, Plane, Sphere
-from ._contact import FRICTION_EPS_V
+from ._model.colliders import Capsule, Plane, Sphere
+from ._implicit.contact import FRICTION_EPS_V
 from ._diagnostics import EnergyReport, energy_report
 from . import reference
-from ._energy import energy, forces, kinetic_energy, spring_energy, total_energy
-from ._mesh import disk, from_mesh, grid_triangles, mesh_springs
-from ._obj import TABLECLOTH_OBJ, read_obj, write_obj, write_obj_sequence
+from ._model.energy import energy, forces, kinetic_energy, spring_energy, total_energy
+from ._model.mesh import disk, from_mesh, grid_triangles, mesh_springs
+from ._model.obj import TABLECLOTH_OBJ, read_obj, write_obj, write_obj_sequence
 from ._integrators import AUTO_DENSE_MAX_PARTICLES, ExplicitEuler, ImplicitEuler
 from ._linear import CG, Auto, Cholesky, Jacobi, TwoLevel
-from ._scene import Cloth, State, grid, grid_springs, lab_cloth, pin_mask, replace
+from ._model.scene import Cloth, State, grid, grid_springs, lab_cloth, pin_mask, replace
 from ._step import StepInfo, rollout, step
-from ._trace import HESSIANS, NewtonTrace
+from ._implicit.trace import HESSIANS, NewtonTrace
 
 __all__ = [
     "Cloth", "State", "StepInfo", "NewtonTrace", "HESSIANS", "EnergyReport", "energy_report", "ExplicitEuler", "ImplicitEuler", "AUTO_DENSE_MAX_PARTICLES",

@@ -3,6 +3,7 @@ split across local devices with ``NamedSharding`` when there are several."""
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from collections.abc import Sequence
 
@@ -14,10 +15,10 @@ import numpy as np
 from .. import _sharding
 from .._dataclass import is_concrete
 from .._validate import check_bool, check_finite, check_int, check_positive, check_real
-from ._coarse import block_ids
-from ._colliders import SCENE_FIELDS, collider_kinds, count_inside, describe_inside
+from ._model.colliders import SCENE_FIELDS, collider_kinds, count_inside, describe_inside
 from ._integrators import ExplicitEuler, ImplicitEuler
-from ._scene import Cloth, State
+from ._layout import batch_layout
+from ._model.scene import Cloth, State, frozen_ids
 from ._step import _rollout, check_inputs, check_resume
 
 
@@ -44,15 +45,10 @@ def stack_scenes(scenes: Sequence[Cloth]) -> Cloth:
                              "order and friction on/off (their values may differ)")
         if (s.contact_stiffness is None) != (first.contact_stiffness is None):
             raise ValueError("scenes differ in whether contact_stiffness is set; set it on all or none")
-    D = max(s.incidence.shape[1] for s in scenes)
-    inc = [jnp.pad(s.incidence, ((0, 0), (0, D - s.incidence.shape[1]))) for s in scenes]
-    leaves = {f: jnp.stack([getattr(s, f) for s in scenes]) for f in _LEAVES if f not in ("incidence", "aggregates")}
-    # any partition of the particles gives a valid preconditioner: the first scene's serves all
-    leaves["aggregates"] = jnp.stack([first.aggregates] * len(scenes))
-    # the grid operator when every scene has the same grid layout, else the general one
-    stencil = first.stencil if all(s.stencil == first.stencil for s in scenes) else None
+    leaves = {f: jnp.stack([getattr(s, f) for s in scenes]) for f in _LEAVES if f != "springs"}
+    leaves["springs"] = frozen_ids(np.stack([s.springs for s in scenes]))  # a topology: concrete under jit too
     leaves.update(_stack_contact(scenes))
-    return _unchecked(first, {**leaves, "incidence": jnp.stack(inc)}, stencil)
+    return dataclasses.replace(first, **leaves)  # a batch: not checked again per scene (Cloth)
 
 
 def _stack_contact(scenes) -> dict:
@@ -66,31 +62,17 @@ def _stack_contact(scenes) -> dict:
     return out
 
 
-_LEAVES = ("rest", "springs", "rest_length", "stiffness", "mass", "pinned", "gravity", "damping", "incidence",
-           "aggregates")
+_LEAVES = ("rest", "springs", "rest_length", "stiffness", "mass", "pinned", "gravity", "damping")
 #: The leaves that contact adds (a pytree of colliders, the gap, the barrier stiffness or ``None``).
 _CONTACT = ("colliders", "contact_gap", "contact_stiffness")
 
 
-def _unchecked(like: Cloth, leaves: dict, stencil=None) -> Cloth:
-    """A ``Cloth`` with ``leaves`` and ``like``'s static flag, skipping the per-scene shape
-    checks (batched leaves carry a leading scene axis); contact leaves not in ``leaves``
-    are ``like``'s."""
-    out = object.__new__(Cloth)
-    for f in _LEAVES + _CONTACT:
-        object.__setattr__(out, f, leaves[f] if f in leaves else getattr(like, f))
-    object.__setattr__(out, "damped", like.damped)
-    object.__setattr__(out, "num_aggregates", like.num_aggregates)
-    object.__setattr__(out, "stencil", stencil)
-    object.__setattr__(out, "coarse_block", like.coarse_block if stencil is not None else 0)
-    return out
-
-
-@functools.partial(jax.jit, static_argnames=("n_steps", "integrator", "checkpoint", "state_batched"))
-def _batched(scenes, state, dt, n_steps, integrator, checkpoint, state_batched, resume=None):
+@functools.partial(jax.jit, static_argnames=("n_steps", "integrator", "checkpoint", "state_batched", "layout_batched"))
+def _batched(scenes, layout, state, dt, n_steps, integrator, checkpoint, state_batched, layout_batched, resume=None):
     run = functools.partial(_rollout, dt=dt, n_steps=n_steps, integrator=integrator, checkpoint=checkpoint)
-    return jax.vmap(lambda c, s, r: run(c, s, resume=r),
-                    in_axes=(0, 0 if state_batched else None, 0))(scenes, state, resume)
+    return jax.vmap(lambda c, lay, s, r: run(c, lay, s, resume=r),
+                    in_axes=(0, 0 if layout_batched else None, 0 if state_batched else None, 0))(
+                        scenes, layout, state, resume)
 
 
 def check_batched(scenes: Cloth) -> None:
@@ -103,17 +85,12 @@ def check_batched(scenes: Cloth) -> None:
     B, N, _ = scenes.rest.shape
     S = scenes.springs.shape[1]
     shapes = {"rest": (B, N, 3), "springs": (B, S, 2), "rest_length": (B, S), "stiffness": (B, S), "mass": (B, N),
-              "pinned": (B, N), "gravity": (B, 3), "damping": (B,), "aggregates": (B, N)}
+              "pinned": (B, N), "gravity": (B, 3), "damping": (B,)}
     for f, shape in shapes.items():
         a = np.asarray(getattr(scenes, f))
         if a.shape != shape:
             raise ValueError(f"batched scene field {f} must have shape {shape}, got {a.shape}")
-        if f == "aggregates" and (a.min() < 0 or a.max() >= scenes.num_aggregates):
-            raise ValueError(f"batched scene aggregates must lie in [0, {scenes.num_aggregates})")
-        if f == "aggregates" and scenes.coarse_block and scenes.stencil is not None and not np.array_equal(
-                a, np.broadcast_to(block_ids(scenes.stencil.rows, scenes.stencil.cols, scenes.coarse_block), a.shape)):
-            raise ValueError("batched scene aggregates must be the grid's blocks (coarse_block); use stack_scenes")
-        if f not in ("springs", "pinned", "aggregates"):
+        if f not in ("springs", "pinned"):
             check_finite(f"batched scene {f}", a)
     for f, strict in (("rest_length", True), ("mass", True), ("stiffness", False), ("damping", False)):
         check_positive(f"batched scene {f}", np.asarray(getattr(scenes, f)), strict=strict)
@@ -184,7 +161,11 @@ def batch_rollout(scenes, state: State, dt, n_steps: int, integrator=ImplicitEul
         scenes = list(scenes)
         for s in scenes:
             check_inputs(s, state if np.ndim(state.x) == 2 else State(state.x[0], state.v[0]), dt, integrator)
+        # from the scenes' own arrays: under a jit around this call the stack is traced
+        layout, layout_batched = batch_layout([s.springs for s in scenes], [s.rest for s in scenes])
         scenes = stack_scenes(scenes)
+    else:
+        layout, layout_batched = batch_layout(scenes.springs, scenes.rest)
     check_batched(scenes)
     if scenes.colliders and isinstance(integrator, ExplicitEuler):
         raise ValueError("colliders need ImplicitEuler: contact is a barrier in its incremental potential")
@@ -208,11 +189,13 @@ def batch_rollout(scenes, state: State, dt, n_steps: int, integrator=ImplicitEul
     pad = 0
     if mesh is not None:
         leaves, pad = _sharding.shard_leading({f: getattr(scenes, f) for f in _LEAVES + _CONTACT}, mesh, B)
-        scenes = _unchecked(scenes, leaves, scenes.stencil)
+        scenes = dataclasses.replace(scenes, **leaves)
+        if layout_batched:
+            layout, _ = _sharding.shard_leading(layout, mesh, B)
         if state_batched:
             state, _ = _sharding.shard_leading(state, mesh, B)
         if resume is not None:
             resume, _ = _sharding.shard_leading(resume, mesh, B)
-    out = _batched(scenes, state, jnp.asarray(dt, scenes.dtype), n_steps, integrator, bool(checkpoint), state_batched,
-                   resume)
+    out = _batched(scenes, layout, state, jnp.asarray(dt, scenes.dtype), n_steps, integrator, bool(checkpoint),
+                   state_batched, layout_batched, resume)
     return _sharding.unpad(out, pad)

@@ -6,8 +6,8 @@ import jax
 import jax.numpy as jnp
 
 from .._dataclass import pytree_dataclass
-from ._energy import total_energy
-from ._scene import Cloth, State
+from ._model.energy import total_energy
+from ._model.scene import Cloth, State
 
 
 @pytree_dataclass

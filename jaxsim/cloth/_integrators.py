@@ -48,7 +48,7 @@ class ImplicitEuler:
         the lab's step test as well: Newton stops once ``max|dx| / h < tol`` and the
         gradient test holds, or the gradient test holds and an iteration no longer
         halves the relative gradient (its noise floor, where float32 cannot meet the
-        step test; ``_newton.FLOOR_RATIO``).  The step test costs an iteration that
+        step test; ``_implicit.newton.FLOOR_RATIO``).  The step test costs an iteration that
         does not make the step more accurate: on the lab cloth and a 32x32 grid the
         second float32 iteration leaves the error against a float64 reference at its
         float32 level (README, "Residual stop").  Either way Newton also stops when
@@ -63,14 +63,14 @@ class ImplicitEuler:
       project_psd: ``"auto"`` (default): Newton uses the exact spring blocks.  When the
         Hessian they make is not positive definite (PCG meets non-positive curvature,
         or Cholesky fails), that iteration's direction is recomputed on the exact
-        Hessian with the inertia term doubled (``_newton.SHIFT``), and if that is
+        Hessian with the inertia term doubled (``direction.SHIFT``), and if that is
         still indefinite, with every block projected.  Once the relative gradient is
         below 1e-3 and the exact Hessian was indefinite, Newton takes full steps to the
         exact Hessian's stationary point (PCG through negative curvature), up to six, kept
         if one lowers the relative gradient (else Newton returns to where they began):
         near a buckling cloth's saddle the shifted Hessian
         converges only linearly, the exact one quadratically, and a stationary point of
-        (17.19) solves backward Euler's equations (``_newton.STATIONARY_REL``).  ``True``: always clamp each
+        (17.19) solves backward Euler's equations (``_implicit.newton.STATIONARY_REL``).  ``True``: always clamp each
         spring block's negative (compression) eigenvalue at 0 (the lab's choice; on stiff, light cloth it turns
         Newton's quadratic convergence into linear).  ``False``: never project.
       max_backtracks: line-search halvings before giving up on a step.
@@ -82,7 +82,7 @@ class ImplicitEuler:
         ``x^n`` is kept wherever its incremental potential is lower; README, "Extrapolated
         start").  Before a rollout's first step the velocities ``v^{-1}, v^{-2}`` are those of
         the backward-Euler motion that ends at the given state (from its forces:
-        ``_extrapolate.History.before``), or the previous rollout's with ``resume``.
+        ``_implicit.extrapolate.History.before``), or the previous rollout's with ``resume``.
         ``1``: the constant-acceleration extrapolation
         ``x^n + h (2 v^n - v^{n-1})``; on a smoothly
         moving cloth one Newton iteration closer to the solution.  ``2``: the
@@ -92,7 +92,7 @@ class ImplicitEuler:
         lab-like grid one Newton iteration from it meets float64's gradient test
         (relative gradient 2.6e-10 to 3.2e-10, against 5e-9 to 1.2e-8 from the linear
         one), but on stiff, buckling cloth it costs iterations.  ``"auto"`` (default, also ``True``): ``2`` on a rollout's
-        first step and after a step that converged within ``_extrapolate.SMOOTH_NEWTON``
+        first step and after a step that converged within ``_implicit.extrapolate.SMOOTH_NEWTON``
         iterations, else ``1``.  ``False`` (``0``):
         the lab's start.  Scenes with colliders always start from ``x^n`` (or its push-out
         off a moving collider).  ``step`` takes the same start as ``guess``.

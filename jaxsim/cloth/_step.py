@@ -12,15 +12,16 @@ from jax import lax
 
 from .._dataclass import is_concrete, pytree_dataclass
 from .._validate import check_bool, check_finite, check_int, check_real, check_shape
-from . import _problem as pr
+from ._implicit import problem as pr
 from ._explicit import bounded, explicit
-from ._extrapolate import History
-from ._implicit_diff import solution
+from ._implicit.extrapolate import History
+from ._implicit.implicit_diff import solution
 from ._integrators import ExplicitEuler, ImplicitEuler
-from ._newton import newton
-from ._colliders import COLLIDERS, collider_kinds, count_inside, describe_inside
-from ._scene import Cloth, State
-from ._trace import NewtonTrace
+from ._implicit.newton import newton
+from ._model.colliders import COLLIDERS, collider_kinds, count_inside, describe_inside
+from ._layout import Layout, layout_of
+from ._model.scene import Cloth, State
+from ._implicit.trace import NewtonTrace
 
 
 @pytree_dataclass
@@ -49,7 +50,7 @@ class StepInfo:
         inputs can fail it, since concrete ones are checked before tracing; an invalid
         step is not taken.
       cond_bound: implicit: an upper bound on the condition number of the step's
-        Hessian (springs and damping, ``_problem.condition_bound``) at the returned
+        Hessian (springs and damping, ``_implicit.problem.condition_bound``) at the returned
         positions; explicit: 1.  The derivative of an implicit step (the implicit
         function theorem's linear solve) is reliable only while ``cond_bound *
         finfo(dtype).eps < 1``: beyond, the linear system is singular to the dtype's
@@ -84,9 +85,9 @@ def valid_inputs(cloth: Cloth, dt):
     return functools.reduce(jnp.logical_and, finite + positive)
 
 
-def _explicit(cloth: Cloth, state: State, dt, integ: ExplicitEuler):
+def _explicit(cloth: Cloth, state: State, dt, integ: ExplicitEuler, layout: Layout | None = None):
     valid = valid_inputs(cloth, dt)
-    new, ok = explicit(cloth, state, dt, integ)
+    new, ok = explicit(cloth, state, dt, integ, layout)
     ok = ok & valid
     z = jnp.zeros((), state.x.dtype)
     info = StepInfo(newton_iters=jnp.int32(0), cg_iters=jnp.int32(0), grad_norm=z, rel_grad=z, step_size=z,
@@ -95,10 +96,11 @@ def _explicit(cloth: Cloth, state: State, dt, integ: ExplicitEuler):
     return State(jnp.where(valid, new.x, state.x), jnp.where(valid, new.v, state.v)), info
 
 
-def _implicit(cloth: Cloth, state: State, dt, integ: ImplicitEuler, prev=None, start=None, tight=False):
+def _implicit(cloth: Cloth, state: State, dt, integ: ImplicitEuler, prev=None, start=None, tight=False,
+              layout: Layout | None = None):
     x0, v0, h = state.x, state.v, dt
     valid = valid_inputs(cloth, dt)
-    p = pr.StepProblem.build(cloth, x0, v0, h, prev)
+    p = pr.StepProblem.build(cloth, x0, v0, h, prev, layout)
     rtol = integ.resolved_rtol(x0.dtype)
     p_const = jax.tree_util.tree_map(lax.stop_gradient, p)
     if start is not None and p.contact is None:  # contact starts from x^n or its push-out
@@ -122,17 +124,18 @@ def _implicit(cloth: Cloth, state: State, dt, integ: ImplicitEuler, prev=None, s
 
 
 @functools.partial(jax.jit, static_argnames=("integrator",))
-def _step(cloth, state, dt, integrator, prev=None, guess=None, history=None):
-    """One step; an implicit one may start Newton from ``guess`` (end-of-step positions,
-    ``(N, 3)``) or from the extrapolation of a :class:`History`."""
+def _step(cloth, layout, state, dt, integrator, prev=None, guess=None, history=None):
+    """One step on ``cloth`` with its ``layout`` (``_layout.layout_of``); an implicit one
+    may start Newton from ``guess`` (end-of-step positions, ``(N, 3)``) or from the
+    extrapolation of a :class:`History`."""
     if isinstance(integrator, ExplicitEuler):
-        return _explicit(cloth, state, dt, integrator)
+        return _explicit(cloth, state, dt, integrator, layout)
     start, tight = None, False
     if guess is not None:
         start = lambda p: (guess - p.x0) - p.prediction  # noqa: E731
     elif history is not None:
         start, tight = history.start, history.jerk
-    return _implicit(cloth, state, dt, integrator, prev, start, tight)
+    return _implicit(cloth, state, dt, integrator, prev, start, tight, layout)
 
 
 def check_inputs(cloth: Cloth, state: State, dt, integrator) -> State:
@@ -200,26 +203,27 @@ def step(cloth: Cloth, state: State, dt, integrator=ImplicitEuler(), guess=None)
     """
     state = check_inputs(cloth, state, dt, integrator)
     guess = None if guess is None else particle_array("guess", guess, cloth)
-    return _step(cloth, state, jnp.asarray(dt, cloth.dtype), integrator, guess=guess)
+    return _step(cloth, layout_of(cloth.springs, cloth.rest), state, jnp.asarray(dt, cloth.dtype), integrator,
+                 guess=guess)
 
 
 @functools.partial(jax.jit, static_argnames=("n_steps", "integrator", "checkpoint"))
-def _rollout(cloth, state, dt, n_steps, integrator, checkpoint=False, path=None, resume=None):
+def _rollout(cloth, layout, state, dt, n_steps, integrator, checkpoint=False, path=None, resume=None):
     extrapolate = isinstance(integrator, ImplicitEuler) and integrator.extrapolate and not cloth.colliders
 
     def f(carry, cols):
         s, prev, history = carry  # history: None unless extrapolating
         if cols is None:
-            s2, info = _step(cloth, s, dt, integrator, history=history)
+            s2, info = _step(cloth, layout, s, dt, integrator, history=history)
         else:  # a collider path: no extrapolation (colliders)
-            s2, info = _step(dataclasses.replace(cloth, colliders=cols), s, dt, integrator, prev)
+            s2, info = _step(dataclasses.replace(cloth, colliders=cols), layout, s, dt, integrator, prev)
         history = None if history is None else history.advance(s.v, info, integrator.extrapolate)
         return (s2, cols if cols is not None else prev, history), (s2, info)
 
     if checkpoint:
         f = jax.checkpoint(f, prevent_cse=False)
     prev0 = cloth.colliders if path is not None else None
-    history = History.before(cloth, state.x, state.v, dt, integrator.extrapolate, resume) if extrapolate else None
+    history = History.before(cloth, state.x, state.v, dt, integrator.extrapolate, resume, layout) if extrapolate else None
     _, (states, infos) = lax.scan(f, (state, prev0, history), path, length=n_steps)
     return states, infos
 
@@ -305,7 +309,7 @@ def rollout(cloth: Cloth, state: State, dt, n_steps: int, integrator=ImplicitEul
         ``cloth.colliders`` whose leaves have a leading ``(n_steps,)`` axis: entry ``t`` is
         the colliders at the end of step ``t`` (the scene's are those at time 0).  A
         particle a collider sweeps over within a step starts that step's Newton solve
-        pushed out to ``dhat / 2`` (``_contact``).
+        pushed out to ``dhat / 2`` (``_implicit.contact``).
       resume: the previous rollout's ``(states, infos)``, ``state`` normally its last state
         (``State(states.x[-1], states.v[-1])``; the start is a guess, taken only where it
         lowers the incremental potential): the extrapolated start goes on from its
@@ -324,5 +328,6 @@ def rollout(cloth: Cloth, state: State, dt, n_steps: int, integrator=ImplicitEul
     n_steps = check_int("n_steps", n_steps, 1)
     path = check_path(cloth, colliders, n_steps)
     resume = check_resume(cloth, resume)
-    return _rollout(cloth, state, jnp.asarray(dt, cloth.dtype), n_steps, integrator,
+    layout = layout_of(cloth.springs, cloth.rest)
+    return _rollout(cloth, layout, state, jnp.asarray(dt, cloth.dtype), n_steps, integrator,
                     check_bool("checkpoint", checkpoint), path, resume)

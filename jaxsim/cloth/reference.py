@@ -10,6 +10,6 @@ energy definition so the tests and notebooks can compare against them.
   semi-definite cone), the blocks the matrix-free CG operator and block Jacobi use.
 """
 
-from ._energy import element_blocks, spring_hessian
+from ._model.energy import element_blocks, spring_hessian
 
 __all__ = ["spring_hessian", "element_blocks"]

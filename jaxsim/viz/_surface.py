@@ -32,7 +32,7 @@ def _polys(x, T):
 
 def _check_colliders(colliders) -> tuple:
     """One static collider or a tuple of them, each with a scene's shapes (no path axis)."""
-    from ..cloth._colliders import COLLIDERS, check_scene_shapes
+    from ..cloth._model.colliders import COLLIDERS, check_scene_shapes
 
     if isinstance(colliders, COLLIDERS):
         colliders = (colliders,)

@@ -31,9 +31,9 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from .._dataclass import pytree_dataclass
-from .._dtype import tiny
-from ._vec import dot, length
+from ..._dataclass import pytree_dataclass
+from ..._dtype import tiny
+from .._vec import dot, length
 
 #: IPC's friction smoothing velocity ``eps_v`` (m/s): tangential speeds below it are
 #: treated as static (the friction force ramps from 0 to ``mu lambda`` over it).

@@ -1,7 +1,7 @@
 """The derivative of an implicit step by the implicit function theorem at its solution.
 
 Nothing is differentiated through the Newton, line-search or CG loops: the converged
-unknown ``w*`` (the deviation from the prediction of inertia and gravity, ``_problem`` module doc)
+unknown ``w*`` (the deviation from the prediction of inertia and gravity, ``_implicit.problem`` module doc)
 solves ``F(w*, p) = 0`` and ``dw*/dp = -J^{-1} dF/dp`` with one linear solve with the
 exact Hessian.
 """
@@ -14,11 +14,11 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
-from . import _contact as ct
-from . import _problem as pr
-from ._linsolve import pcg
-from ._hessian import block_jacobi
-from ._linear import Cholesky
+from . import contact as ct
+from . import problem as pr
+from .linsolve import pcg
+from .hessian import block_jacobi
+from .._linear import Cholesky
 
 
 def stationarity(w, p: pr.StepProblem):

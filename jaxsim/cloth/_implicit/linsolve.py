@@ -67,7 +67,7 @@ def pcg(apply_A, b, x0, apply_Minv, *, tol, max_iters: int, indefinite: bool = F
 
 def block_inverse(blocks, planar: bool = False):
     """Inverses of SPD 3x3 blocks (the block-Jacobi preconditioner): ``(N, 3, 3)``, or
-    ``(3, 3, ...)`` with ``planar`` (``_planes``).
+    ``(3, 3, ...)`` with ``planar`` (``_layout.planes``).
 
     Closed form (adjugate over determinant), elementwise over the batch: much faster
     on CPU than a batched LU for 3x3 blocks.

@@ -6,7 +6,7 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
-from .._dataclass import pytree_dataclass
+from ..._dataclass import pytree_dataclass
 
 #: ``NewtonTrace.hessian`` codes: which Hessian gave the iteration's direction.
 HESSIANS = ("exact", "shifted", "clamped", "stationary")
@@ -23,7 +23,7 @@ class NewtonTrace:
       step: ``max|alpha dx| / h``, the lab's step test (m/s).  An iteration whose step
         came out non-finite is not taken (``StepInfo.stable`` is then False), nor is the
         last step of a stationary-point phase that did not lower the relative gradient
-        (``_newton.STATIONARY_STEPS``): each logs step 0 and the ``g`` and ``rel`` Newton
+        (``_implicit.newton.STATIONARY_STEPS``): each logs step 0 and the ``g`` and ``rel`` Newton
         goes on from (where the phase began).  A phase cut off by ``newton_iters`` also
         returns there; the steps it took stay logged.
       alpha: the line search's step size.
@@ -32,7 +32,7 @@ class NewtonTrace:
       hessian: index into ``HESSIANS``: ``0`` the exact spring blocks (or the clamped
         ones with ``project_psd=True``), ``1`` the exact Hessian with the inertia term
         shifted, ``2`` every block clamped (``project_psd="auto"``'s fallbacks), ``3`` the
-        exact Hessian solved for the nearby stationary point (``_newton.STATIONARY_REL``).
+        exact Hessian solved for the nearby stationary point (``_implicit.newton.STATIONARY_REL``).
     """
 
     g: jax.Array

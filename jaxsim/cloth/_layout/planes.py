@@ -2,12 +2,12 @@
 
 A particle array ``(N, 3)`` has a minor axis of 3, and so do the spring blocks
 ``(S, 3, 3)``; XLA:CPU vectorises an elementwise loop along the minor axis, and a minor
-axis of 3 leaves its vector units mostly empty.  On a grid scene (``_stencil``) the CG
+axis of 3 leaves its vector units mostly empty.  On a grid scene (``_layout.stencil``) the CG
 loop of a Newton iteration runs instead on planes: vectors ``(3, rows, cols)``, spring
 blocks ``(3, 3, S)``, per-particle blocks ``(3, 3, rows, cols)``.  Every elementwise loop
 then runs along a grid row.  The spring operator ``v -> sum_s A_s (v_j - v_i)`` takes
 about half the time of the ``(N, 3)`` one (B 32x32 and 128x128, float64; README "PCG on
-planes").  Newton (``_hessian.HessianOps``) converts its right-hand side and warm start
+planes").  Newton (``_implicit.hessian.HessianOps``) converts its right-hand side and warm start
 once per solve, and forms the blocks in planes once per iteration.
 """
 
@@ -17,8 +17,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._coarse import block_grid
-from ._stencil import Stencil
+from .aggregates import block_grid
+from .stencil import Stencil
 
 
 def to_planes(st: Stencil, v):
@@ -40,7 +40,7 @@ def particle_planes(st: Stencil, a):
 
 def radial_blocks(e, along, across, e0=None, d_over_h=None, *, project_psd: bool):
     """``(3, 3, S)`` blocks ``along e e^T + across (I - e e^T)`` (+ ``(d/h) e0 e0^T``) from
-    ``e, e0 (S, 3)`` and ``along, across (S,)``: ``_energy.radial_blocks`` in planes."""
+    ``e, e0 (S, 3)`` and ``along, across (S,)``: ``_model.energy.radial_blocks`` in planes."""
     if project_psd:
         along, across = jnp.maximum(along, 0.0), jnp.maximum(across, 0.0)
     e, e0 = e.T, None if e0 is None else e0.T
@@ -101,7 +101,7 @@ def block_sums(st: Stencil, A):
 
 
 # -- the two-level preconditioner's coarse space on a grid: square blocks of b x b particles
-# (``_coarse.grid_block``), so that restriction and prolongation are block sums and copies.
+# (``_implicit.coarse.grid_block``), so that restriction and prolongation are block sums and copies.
 
 def _block_grid(st: Stencil, b: int) -> tuple[int, int]:
     return block_grid(st.rows, st.cols, b)
@@ -121,7 +121,7 @@ def block_reduce(st: Stencil, b: int, F):
 
 
 def coarse_matrix(st: Stencil, b: int, A, D, free):
-    """The Galerkin matrix ``P^T H P`` (``3 count`` square) of ``_coarse`` on blocks.
+    """The Galerkin matrix ``P^T H P`` (``3 count`` square) of ``_implicit.coarse`` on blocks.
 
     Args:
       A: ``(3, 3, S)`` PSD spring blocks.

@@ -5,29 +5,29 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from .._dataclass import pytree_dataclass
-from . import _energy as en
-from ._scene import spring_diff, spring_sum
-from ._vec import dot
+from ..._dataclass import pytree_dataclass
+from .._model import energy as en
+from .._layout import spring_diff, spring_sum
+from .._vec import dot
 
 #: ``ImplicitEuler(extrapolate="auto")``: a step that converged within this many Newton
 #: iterations marks the motion as smooth, and the next step starts from the constant-jerk
 #: extrapolation with a first PCG solve aimed at the gradient test (one iteration is then
-#: expected to meet it; ``_newton.newton``'s ``tight_first``; README, "Extrapolated start").
+#: expected to meet it; ``_implicit.newton.newton``'s ``tight_first``; README, "Extrapolated start").
 SMOOTH_NEWTON = 2
 
 
-def acceleration(cloth, x, v):
+def acceleration(cloth, x, v, layout=None):
     """``(N, 3)`` ``a = F(x, v) / m`` (m/s^2; 0 on pins): springs by the radial form
     (``psi'(s) e``, summed at both ends without a scatter on a grid), gravity, and the
     along-spring damping ``d ((v_j - v_i) . e) e`` with ``e`` at ``x``.  A backward-Euler
     step that ends at ``(x, v)`` had ``v - h a`` as its first velocity."""
-    d = spring_diff(cloth, x)
+    d = spring_diff(cloth, x, layout)
     e, dpsi, _, _ = en.radial_parts(d, en._length(d) - cloth.rest_length, cloth.stiffness)
     f = dpsi[:, None] * e
     if cloth.damped:
-        f = f + (cloth.damping * dot(spring_diff(cloth, v), e))[:, None] * e
-    a = cloth.gravity - spring_sum(cloth, f) / cloth.mass[:, None]
+        f = f + (cloth.damping * dot(spring_diff(cloth, v, layout), e))[:, None] * e
+    a = cloth.gravity - spring_sum(cloth, f, layout=layout) / cloth.mass[:, None]
     return jnp.where(cloth.pinned[:, None], 0.0, a)
 
 
@@ -47,9 +47,9 @@ class History:
     smooth: jax.Array | None = None
 
     @staticmethod
-    def before(cloth, x, v, h, mode, resume=None) -> "History":
+    def before(cloth, x, v, h, mode, resume=None, layout=None) -> "History":
         """The history before a rollout's first step from ``(x, v)`` (``(N, 3)``);
-        ``mode``: ``ImplicitEuler.extrapolate``.
+        ``mode``: ``ImplicitEuler.extrapolate``; ``layout``: the scene's (``_layout``).
 
         ``resume``: ``(v (T, N, 3), converged (), newton_iters ())`` of the previous
         rollout (its last ``T <= 3`` velocities and its last step's diagnostics), whose
@@ -63,10 +63,10 @@ class History:
         rollout, instead of three and two on the first two steps.  From rest (``a = g``
         on free particles) it is ``x^0 + h^2 g``."""
         known = 0 if resume is None else resume[0].shape[0]
-        v_prev = resume[0][-2] if known >= 2 else v - h * acceleration(cloth, x, v)
+        v_prev = resume[0][-2] if known >= 2 else v - h * acceleration(cloth, x, v, layout)
         if mode == 1:
             return History(v_prev)
-        v_prev2 = resume[0][-3] if known >= 3 else v_prev - h * acceleration(cloth, x - h * v, v_prev)
+        v_prev2 = resume[0][-3] if known >= 3 else v_prev - h * acceleration(cloth, x - h * v, v_prev, layout)
         if mode == 2 or resume is None:
             smooth = jnp.array(True)
         else:

@@ -8,7 +8,7 @@ prediction ``y = h v^n + h^2 g`` of inertia and gravity alone:
 
 with ``d0 = x^n_j - x^n_i``, ``l0 = |d0|``, ``s0 = l0 - L``, the spring's change
 ``du_s = h (v^n_j - v^n_i) + (w_j - w_i)`` and ``D`` the frozen-direction damping potential
-(``_energy`` module doc); gravity is in ``y`` (``1/(2h^2)|u - h v^n|^2_M - m g . u`` is
+(``_model.energy`` module doc); gravity is in ``y`` (``1/(2h^2)|u - h v^n|^2_M - m g . u`` is
 ``1/(2h^2)|w|^2_M`` plus a constant).  ``g`` differs from (17.19) by a constant only, but
 every term is computed from the motion itself, and the unknown is the part of the motion
 that the springs (and colliders) decide.  The precision of the solve is relative to
@@ -26,13 +26,14 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 
-from .._dataclass import pytree_dataclass
-from .._dtype import tiny
-from .._fusion import materialized
-from . import _contact as ct
-from . import _energy as en
-from ._scene import Cloth, spring_diff, spring_sum
-from ._vec import dot
+from ..._dataclass import pytree_dataclass
+from ..._dtype import tiny
+from ..._fusion import materialized
+from . import contact as ct
+from .._model import energy as en
+from .._layout import Layout, layout_of
+from .._model.scene import Cloth
+from .._vec import dot
 
 
 def free_mask(cloth: Cloth, dtype) -> jax.Array:
@@ -47,6 +48,7 @@ class StepProblem:
     Attributes:
       cloth: the scene (an undamped scene has its ``damping`` leaf replaced by 0 so the
         compiled step never reads it).
+      layout: how the springs are walked (``_layout``: ``PlanarLayout`` or ``ParticleLayout``).
       x0: ``(N, 3)`` positions ``x^n`` (m).
       v0: ``(N, 3)`` velocities ``v^n`` (m/s).
       h: ``()`` time step (s).
@@ -55,11 +57,12 @@ class StepProblem:
       s0: ``(S,)`` stretches ``l0 - L`` (m).
       dv: ``(S, 3)`` the springs' change under the inertial prediction, ``h (v^n_j - v^n_i)`` (m).
       e0: ``(S, 3)`` frozen unit damping directions ``d0 / l0`` (``None`` when undamped).
-      contact: the lagged contact terms (``_contact.ContactTerms``), ``None`` for a scene
+      contact: the lagged contact terms (``_implicit.contact.ContactTerms``), ``None`` for a scene
         without colliders.
     """
 
     cloth: Cloth
+    layout: Layout
     x0: jax.Array
     v0: jax.Array
     h: jax.Array
@@ -71,14 +74,16 @@ class StepProblem:
     contact: ct.ContactTerms | None = None
 
     @staticmethod
-    def build(cloth: Cloth, x0, v0, h, prev_colliders=None) -> "StepProblem":
+    def build(cloth: Cloth, x0, v0, h, prev_colliders=None, layout: Layout | None = None) -> "StepProblem":
         """Derive the per-step terms (differentiable in every input).
 
         ``prev_colliders``: the colliders at the start of the step when they move (the
-        scene holds those at its end); default static."""
+        scene holds those at its end); default static.  ``layout``: the scene's
+        (``_layout.layout_of``, built here when ``None``)."""
+        layout = layout_of(cloth.springs, cloth.rest) if layout is None else layout
         if not cloth.damped:
             cloth = dataclasses.replace(cloth, damping=jnp.zeros((), x0.dtype))
-        d0 = spring_diff(cloth, x0)
+        d0 = layout.diff(cloth.springs, x0)
         l0 = en._length(d0)
         e0 = None
         if cloth.damped:
@@ -87,8 +92,8 @@ class StepProblem:
         contact = None
         if cloth.colliders:
             contact = ct.build(cloth, x0, h, free_mask(cloth, x0.dtype), prev_colliders)
-        return StepProblem(cloth, x0, v0, h, d0, l0, l0 - cloth.rest_length, h * spring_diff(cloth, v0), e0,
-                           contact)
+        return StepProblem(cloth, layout, x0, v0, h, d0, l0, l0 - cloth.rest_length,
+                           h * layout.diff(cloth.springs, v0), e0, contact)
 
     @property
     def free(self) -> jax.Array:
@@ -122,7 +127,11 @@ class StepProblem:
 
     def spring_change(self, w):
         """``(S, 3)`` change ``h (v^n_j - v^n_i) + (w_j - w_i)`` of every spring vector (m)."""
-        return self.dv + spring_diff(self.cloth, w)
+        return self.dv + self.layout.diff(self.cloth.springs, w)
+
+    def sum(self, f, signed: bool = True):
+        """Per-particle sums of per-spring values ``f (S, ...) -> (N, ...)`` (``_layout``)."""
+        return self.layout.sum(self.cloth.springs, f, signed)
 
 
 @pytree_dataclass
@@ -132,8 +141,8 @@ class SpringTerms:
 
     A spring's potential depends on its length only, so everything Newton needs from it
     follows from the scalar spring law's derivatives (``jax.grad`` of
-    ``_energy.spring_potential``) and the unit direction: the force on the spring's
-    second end is ``psi'(s) e`` (the radial form of the gradient; ``_energy.radial_parts``
+    ``_model.energy.spring_potential``) and the unit direction: the force on the spring's
+    second end is ``psi'(s) e`` (the radial form of the gradient; ``_model.energy.radial_parts``
     is that of the Hessian blocks), plus the damping force ``(d/h)(e0 . dd) e0``.
 
     Attributes:
@@ -204,12 +213,12 @@ def start_objective(p: StepProblem):
 def gradient(w, p: StepProblem, t: SpringTerms):
     """``grad g(w)`` ``(N, 3)`` (N) from the spring terms ``t`` at ``w``: inertia plus the
     per-spring forces ``psi'(s) e (+ (d/h)(e0 . dd) e0)`` summed at both ends (no
-    scatter on a grid or with ``Cloth.incidence``), plus the contact terms' ``jax.grad``."""
+    scatter: ``_layout``), plus the contact terms' ``jax.grad``."""
     c = p.cloth
     f = t.dpsi[:, None] * t.e
     if t.damp is not None:
         f = f + (p.d_over_h * t.damp)[:, None] * p.e0
-    out = c.mass[:, None] / p.h**2 * w + spring_sum(c, materialized(f))
+    out = c.mass[:, None] / p.h**2 * w + p.sum(materialized(f))
     if p.contact is not None:
         out = out + jax.grad(_contact_potential)(w, p)
     return out
@@ -230,7 +239,7 @@ def force_scale(w, p: StepProblem, t: SpringTerms | None = None):
         f = f + jnp.abs(p.d_over_h * t.damp)
     m = c.mass
     inertia = m / p.h**2 * en._length(w + p.h**2 * c.gravity)
-    scale = inertia + m * en._length(c.gravity) + spring_sum(c, materialized(f), signed=False)
+    scale = inertia + m * en._length(c.gravity) + p.sum(materialized(f), signed=False)
     if p.contact is not None:
         scale = scale + ct.force_magnitudes(p.displacement(w), p.x0, c, p.contact, p.free)
     return scale
@@ -259,7 +268,7 @@ def condition_bound(p: StepProblem, t: SpringTerms):
         a = a + p.d_over_h
     inertia = c.mass / p.h**2
     free = p.free[:, 0] > 0
-    hi = jnp.max(jnp.where(free, inertia + 2.0 * spring_sum(c, materialized(a), signed=False), 0.0))
+    hi = jnp.max(jnp.where(free, inertia + 2.0 * p.sum(materialized(a), signed=False), 0.0))
     lo = jnp.min(jnp.where(free, inertia, jnp.inf))
     r = hi / lo
     return jnp.where(jnp.any(free), jnp.where(r >= 1.0, r, jnp.inf), 1.0)

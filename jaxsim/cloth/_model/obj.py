@@ -8,7 +8,7 @@ import numpy as np
 
 #: A circular tablecloth shipped with the package: a flat disk of radius 0.8 m in the
 #: plane y = 0, 10 rings, 331 vertices, 600 near-equilateral triangles.
-TABLECLOTH_OBJ = os.path.join(os.path.dirname(__file__), "data", "tablecloth.obj")
+TABLECLOTH_OBJ = os.path.join(os.path.dirname(os.path.dirname(__file__)), "data", "tablecloth.obj")
 
 
 def read_obj(path) -> tuple[np.ndarray, np.ndarray]:

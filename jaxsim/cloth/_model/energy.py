@@ -22,10 +22,11 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from ._scene import Cloth, spring_diff
-from ._vec import dot
-from ._vec import length as _length
-from ._vec import stretch_increment
+from .._layout import spring_diff
+from .scene import Cloth
+from .._vec import dot
+from .._vec import length as _length
+from .._vec import stretch_increment
 
 
 def spring_potential(stretch, k):
@@ -56,9 +57,9 @@ def step_element(dd, d0, l0, s0, k, e0=None, d_over_h=None):
     return element_potential(s0 + stretch_increment(d0, l0, dd), k, None if e0 is None else dot(e0, dd), d_over_h)
 
 
-def spring_energy(cloth: Cloth, x):
-    """Total spring energy (J) at positions ``x (N, 3)``."""
-    return jnp.sum(spring_potential(_length(spring_diff(cloth, x)) - cloth.rest_length, cloth.stiffness))
+def spring_energy(cloth: Cloth, x, layout=None):
+    """Total spring energy (J) at positions ``x (N, 3)`` (``layout``: ``_layout``, default gathers)."""
+    return jnp.sum(spring_potential(_length(spring_diff(cloth, x, layout)) - cloth.rest_length, cloth.stiffness))
 
 
 def gravity_energy(cloth: Cloth, x):
@@ -66,28 +67,28 @@ def gravity_energy(cloth: Cloth, x):
     return -jnp.sum(cloth.mass[:, None] * cloth.gravity * x)
 
 
-def energy(cloth: Cloth, x):
+def energy(cloth: Cloth, x, layout=None):
     """The potential energy (J): springs plus gravity.  Shape ``(N, 3) -> ()``."""
-    return spring_energy(cloth, x) + gravity_energy(cloth, x)
+    return spring_energy(cloth, x, layout) + gravity_energy(cloth, x)
 
 
-def forces(cloth: Cloth, x):
+def forces(cloth: Cloth, x, layout=None):
     """Conservative forces ``-grad energy`` (N), ``(N, 3)``."""
-    return -jax.grad(energy, argnums=1)(cloth, x)
+    return -jax.grad(energy, argnums=1)(cloth, x, layout)
 
 
 def kinetic_energy(cloth: Cloth, v):
     return 0.5 * jnp.sum(cloth.mass[:, None] * v * v)
 
 
-def total_energy(cloth: Cloth, x, v):
+def total_energy(cloth: Cloth, x, v, layout=None):
     """Kinetic + spring + gravity energy (J)."""
-    return kinetic_energy(cloth, v) + energy(cloth, x)
+    return kinetic_energy(cloth, v) + energy(cloth, x, layout)
 
 
-def spring_directions(cloth: Cloth, x):
+def spring_directions(cloth: Cloth, x, layout=None):
     """Unit directions ``e (S, 3)`` and vectors ``x_j - x_i (S, 3)`` of every spring."""
-    d = spring_diff(cloth, x)
+    d = spring_diff(cloth, x, layout)
     n = _length(d)[:, None]
     return jnp.where(n > 0, d / jnp.where(n > 0, n, 1.0), 0.0), d
 

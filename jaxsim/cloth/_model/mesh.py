@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._dtype import check_float_dtype, default_float
-from .._validate import check_finite, check_int, check_real, check_shape
-from ._scene import Cloth, pin_mask
+from ..._dtype import check_float_dtype, default_float
+from ..._validate import check_finite, check_int, check_real, check_shape
+from .scene import Cloth, pin_mask
 
 
 def check_triangles(vertices, triangles) -> tuple[np.ndarray, np.ndarray]:

@@ -27,11 +27,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._dataclass import is_concrete, pytree_dataclass, static_field
-from .._dtype import tiny
-from .._validate import check_finite, check_positive
-from ._vec import dot as _dot
-from ._vec import length, stretch_increment
+from ..._dataclass import is_concrete, pytree_dataclass, static_field
+from ..._dtype import tiny
+from ..._validate import check_finite, check_positive
+from .._vec import dot as _dot
+from .._vec import length, stretch_increment
 
 
 def _unit(v, fallback=(0.0, 1.0, 0.0)):

@@ -1,12 +1,12 @@
 """A two-level preconditioner for the Newton step's CG: block Jacobi around a coarse solve.
 
-Block Jacobi (``_hessian.block_jacobi``) removes the stiffness of each particle's own
+Block Jacobi (``_implicit.hessian.block_jacobi``) removes the stiffness of each particle's own
 springs, but not the smooth, cloth-wide modes.  On stiff, light cloth (``k h^2 / m`` in
 the thousands) those modes need hundreds of CG iterations per Newton iteration.
 
 Here the particles are grouped into at most ``MAX_AGGREGATES`` aggregates: square
 blocks of the particle grid on a grid scene (``grid_block``, ``block_ids``; restriction,
-prolongation and the Galerkin product then run on planes, ``_planes``), else the cells of
+prolongation and the Galerkin product then run on planes, ``_layout.planes``), else the cells of
 a voxel grid over the rest shape (``aggregate``).  The prolongation ``P`` copies an
 aggregate's 3-vector to each of its free particles (piecewise-constant aggregation).
 The coarse matrix is the Galerkin product ``A_c = P^T A P`` of the preconditioning
@@ -30,39 +30,6 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 from jax import lax
-import numpy as np
-
-#: Largest number of aggregates: the coarse matrix is at most ``3 * 64 = 192`` square.
-MAX_AGGREGATES = 64
-
-
-def aggregate(rest, max_aggregates: int = MAX_AGGREGATES) -> tuple[np.ndarray, int]:
-    """Group particles into the cells of the coarsest voxel grid with few enough occupied cells.
-
-    Args:
-      rest: ``(N, 3)`` rest positions (m), concrete.
-      max_aggregates: most aggregates allowed.
-
-    Returns:
-      ``(ids (N,) int32, count)``: each particle's aggregate in ``[0, count)``.
-    """
-    x = np.asarray(rest, np.float64).reshape(-1, 3)
-    N = len(x)
-    if N <= 1:
-        return np.zeros(N, np.int32), 1
-    lo, span = x.min(axis=0), np.ptp(x, axis=0)
-    cell = max(float(span.max()), 1e-300) / (2 * max_aggregates)
-    while True:
-        # the same number of particles per cell along each axis: split each axis evenly
-        n = np.maximum(np.ceil(span / cell), 1)
-        width = np.where(span > 0, span / n, 1.0)
-        cells = np.minimum(np.floor((x - lo) / width), n - 1).astype(np.int64)
-        keys = (cells[:, 0] * int(n[1]) + cells[:, 1]) * int(n[2]) + cells[:, 2]  # one int per cell
-        _, ids = np.unique(keys, return_inverse=True)
-        count = int(ids.max()) + 1
-        if count <= max_aggregates:
-            return ids.reshape(-1).astype(np.int32), count
-        cell *= 1.25
 
 
 #: A float64 coarse matrix is factored in float32, shifted where needed so that an upper
@@ -107,7 +74,7 @@ def least_mass(aggregate_mass, h):
     whose coarse rows are the identity): a lower bound on the coarse matrix's eigenvalues.
 
     ``aggregate_mass``: each aggregate's free mass, any shape (``segment_sum`` over the
-    aggregates, or ``_planes.block_reduce`` on a grid)."""
+    aggregates, or ``_layout.planes.block_reduce`` on a grid)."""
     m = aggregate_mass / h**2
     return jnp.min(jnp.where(m > 0, m, 1.0))
 
@@ -134,36 +101,13 @@ def coarse_matrix(ids, count: int, springs, A, diag, free):
     return Ac + jnp.diag(jnp.repeat(empty, 3))
 
 
-def grid_block(rows: int, cols: int, max_aggregates: int = MAX_AGGREGATES) -> int:
-    """Side ``b`` of the square particle blocks that aggregate a ``rows x cols`` grid: the
-    smallest with at most ``max_aggregates`` blocks."""
-    b = 1
-    while np.prod(block_grid(rows, cols, b)) > max_aggregates:
-        b += 1
-    return b
-
-
-def block_grid(rows: int, cols: int, b: int) -> tuple[int, int]:
-    """``(nI, nJ)``: the blocks of side ``b`` along each axis of a ``rows x cols`` grid."""
-    return -(-rows // b), -(-cols // b)
-
-
-def block_ids(rows: int, cols: int, b: int) -> np.ndarray:
-    """``(rows * cols,)`` int32: particle ``(r, c)``'s block ``(r // b, c // b)``, row-major."""
-    r, c = np.divmod(np.arange(rows * cols), cols)
-    return ((r // b) * block_grid(rows, cols, b)[1] + c // b).astype(np.int32)
-
-
-def coarse_correction(ids, count: int, factor, free, to_layout=None, from_layout=None):
-    """``r -> P A_c^-1 P^T r`` in CG's layout (``to_layout``/``from_layout``: ``(N, 3)`` to
-    it and back, default the identity); ``free (N, 1)``."""
-    to_layout = to_layout or (lambda v: v)
-    from_layout = from_layout or (lambda v: v)
+def coarse_correction(ids, count: int, factor, free):
+    """``r -> P A_c^-1 P^T r`` on ``(N, 3)`` vectors; ``free (N, 1)``."""
 
     def coarse(r):
-        rc = jax.ops.segment_sum(from_layout(r) * free, ids, count).reshape(-1)
+        rc = jax.ops.segment_sum(r * free, ids, count).reshape(-1)
         zc = jax.scipy.linalg.cho_solve(factor, rc).reshape(count, 3)
-        return to_layout(zc[ids] * free)
+        return zc[ids] * free
 
     return coarse
 
@@ -172,7 +116,7 @@ def two_level(coarse, jacobi, operator):
     """The symmetric two-level cycle of the module doc, as ``r -> z`` in CG's layout.
 
     Args:
-      coarse: ``r -> P A_c^-1 P^T r`` (:func:`coarse_correction`, or ``_planes.coarse_correction``).
+      coarse: ``r -> P A_c^-1 P^T r`` (:func:`coarse_correction`, or ``_layout.planes.coarse_correction``).
       jacobi: ``r -> D^-1 r`` (identity on pins).
       operator: ``v -> A v`` restricted to the free particles (identity on pins).
     """

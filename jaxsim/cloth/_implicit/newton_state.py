@@ -1,12 +1,12 @@
-"""The Newton loop's carry: the iterate and the loop's bookkeeping (``_newton``)."""
+"""The Newton loop's carry: the iterate and the loop's bookkeeping (``newton``)."""
 
 from __future__ import annotations
 
 import jax
 
-from .._dataclass import pytree_dataclass
-from . import _problem as pr
-from ._trace import NewtonTrace
+from ..._dataclass import pytree_dataclass
+from . import problem as pr
+from .trace import NewtonTrace
 
 
 @pytree_dataclass
@@ -15,11 +15,11 @@ class Iterate:
 
     Attributes:
       w: ``(N, 3)`` deviation ``x - x^n - y`` from the prediction ``y = h v^n + h^2 g``
-        (m; ``_problem`` module doc); ``-y`` on pinned particles (they do not move).
+        (m; ``_implicit.problem`` module doc); ``-y`` on pinned particles (they do not move).
       g: ``()`` objective ``g(w)`` (J).
       grad: ``(N, 3)`` ``grad g(w)`` on free particles, 0 on pinned ones (N).
       rel: ``()`` relative gradient ``|grad|_inf / scale`` at ``w``.
-      terms: the spring terms at ``w`` (``_problem.SpringTerms``), which gave ``g``,
+      terms: the spring terms at ``w`` (``_implicit.problem.SpringTerms``), which gave ``g``,
         ``grad`` and ``rel`` and give the next iteration's Hessian blocks.
     """
 

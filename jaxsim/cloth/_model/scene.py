@@ -8,12 +8,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._dataclass import is_concrete, pytree_dataclass, static_field
-from .._dtype import as_float, check_array_dtype, check_float_dtype, default_float
-from .._validate import check_finite, check_int, check_positive, check_real, check_shape
-from ._coarse import aggregate, block_grid, block_ids, grid_block
-from ._colliders import check_colliders, count_inside, describe_inside
-from ._stencil import Stencil, detect, differences, sums
+from ..._dataclass import is_concrete, pytree_dataclass, static_field
+from ..._dtype import as_float, check_array_dtype, check_float_dtype, default_float
+from ..._validate import check_finite, check_int, check_positive, check_real, check_shape
+from .colliders import check_colliders, count_inside, describe_inside
+from .._layout.stencil import Stencil
 
 
 @pytree_dataclass
@@ -22,7 +21,9 @@ class Cloth:
 
     Attributes:
       rest: ``(N, 3)`` rest positions (m).
-      springs: ``(S, 2)`` int32 particle ids ``(i, j)`` of each spring.
+      springs: ``(S, 2)`` int32 particle ids ``(i, j)`` of each spring: the topology, kept
+        as a read-only NumPy array, so that the solver's layout (``_layout.layout_of``) is
+        found from it even when the scene is built inside ``jit``.
       rest_length: ``(S,)`` rest lengths ``L`` (m), > 0.
       stiffness: ``(S,)`` spring constants ``k`` (N/m).
       mass: ``(N,)`` particle masses (kg), > 0.
@@ -31,29 +32,10 @@ class Cloth:
       damping: ``()`` along-spring damping coefficient ``d`` (N·s/m), >= 0.
       damped: static flag, ``damping != 0`` at construction; when False the compiled
         step holds no damping code at all.
-      incidence: ``(N, D)`` int32, derived from ``springs`` at construction (leave it
-        ``None``): entry ``s + 1`` where particle ``n`` is spring ``s``'s second end,
-        ``-(s + 1)`` where it is the first, 0 as padding (``D`` = largest degree).  It
-        lets the CG operator sum spring forces per particle by gathering instead of a
-        scatter-add.
-      aggregates: ``(N,)`` int32, derived at construction (leave it ``None``): each
-        particle's aggregate, at most 64 of them, used by
-        ``CG(preconditioner=TwoLevel())`` (``_coarse``): square blocks of the
-        particle grid on a grid scene (``stencil``), else the cells of a voxel grid over
-        ``rest``.
-      num_aggregates: static, the number of aggregates.
-      coarse_block: static, derived: the side ``b`` of the grid's square blocks when the
-        aggregates are those blocks (the two-level preconditioner then works on planes,
-        ``_planes``), else 0.
-      stencil: static, derived from ``springs`` at construction (leave it ``None``): the
-        grid layout (``_stencil.Stencil``) when the springs are a regular grid's
-        families in order (as ``grid`` and ``lab_cloth`` build them), else ``None``.
-        With a layout, spring differences and per-particle sums are shifted slices
-        rather than gathers through ``incidence`` (the same sums, tested equal).
-      colliders: tuple of ``Plane``, ``Sphere`` and ``Capsule`` (``_colliders``); the
+      colliders: tuple of ``Plane``, ``Sphere`` and ``Capsule`` (``_model.colliders``); the
         empty default compiles no contact code at all.
       contact_gap: ``()`` IPC barrier distance ``dhat`` (m); default 1e-3 times the
-        diagonal of the rest shape's bounding box (``_contact`` module doc).
+        diagonal of the rest shape's bounding box (``_implicit.contact`` module doc).
       contact_stiffness: ``()`` barrier stiffness per unit mass ``kappa`` (1/s^2), or
         ``None`` (default) for ``(|g| + dhat/h^2) / dhat`` at step ``h``.
 
@@ -71,11 +53,6 @@ class Cloth:
     gravity: jax.Array
     damping: jax.Array
     damped: bool = static_field(default=True)
-    incidence: jax.Array | None = None
-    aggregates: jax.Array | None = None
-    num_aggregates: int = static_field(default=0)
-    coarse_block: int = static_field(default=0)
-    stencil: Stencil | None = static_field(default=None)
     colliders: tuple = ()
     contact_gap: jax.Array | None = None
     contact_stiffness: jax.Array | None = None
@@ -85,8 +62,8 @@ class Cloth:
                   self.gravity, self.damping)
         if not is_concrete(*leaves):
             return
-        if np.ndim(self.rest) == 3 and self.incidence is not None:
-            return  # a batch from stack_scenes, rebuilt by a pytree map (checked by batch_rollout)
+        if np.ndim(self.rest) == 3:
+            return  # a batch of validated scenes (stack_scenes), checked again by batch_rollout
         rest = check_shape("rest positions", self.rest, (None, 3))
         check_array_dtype("Cloth", rest.dtype)
         N = rest.shape[0]
@@ -119,7 +96,7 @@ class Cloth:
         dtype = jax.dtypes.canonicalize_dtype(rest.dtype) if np.issubdtype(rest.dtype, np.floating) else default_float()
         set_ = object.__setattr__
         set_(self, "rest", as_float(rest, dtype))
-        set_(self, "springs", jnp.asarray(springs, jnp.int32))
+        set_(self, "springs", frozen_ids(springs))
         set_(self, "rest_length", as_float(L, dtype))
         set_(self, "stiffness", as_float(k, dtype))
         set_(self, "mass", as_float(m, dtype))
@@ -127,23 +104,6 @@ class Cloth:
         set_(self, "gravity", as_float(g, dtype))
         set_(self, "damping", as_float(d, dtype))
         set_(self, "damped", bool(self.damped) and float(d) != 0.0)
-        set_(self, "incidence", jnp.asarray(incidence(np.asarray(springs), N)))
-        st = self.stencil
-        if not (isinstance(st, Stencil) and np.array_equal(st.springs(), springs)):
-            st = detect(springs, N)
-        set_(self, "stencil", st)
-        ids = self.aggregates
-        b = 0 if st is None else grid_block(st.rows, st.cols)
-        if ids is None or self.num_aggregates == 0 or np.shape(ids) != (N,):
-            ids, count = (aggregate(rest) if st is None
-                          else (block_ids(st.rows, st.cols, b), int(np.prod(block_grid(st.rows, st.cols, b)))))
-            set_(self, "num_aggregates", count)
-        ids = np.asarray(ids)
-        blocks = b and self.num_aggregates == np.prod(block_grid(st.rows, st.cols, b))
-        set_(self, "coarse_block", b if blocks and np.array_equal(ids, block_ids(st.rows, st.cols, b)) else 0)
-        if not np.issubdtype(ids.dtype, np.integer) or ids.min() < 0 or ids.max() >= self.num_aggregates:
-            raise ValueError(f"aggregates must be integer ids in [0, {self.num_aggregates}) (leave them None)")
-        set_(self, "aggregates", jnp.asarray(ids, jnp.int32))
         set_(self, "colliders", check_colliders(self.colliders, dtype))
         if self.contact_gap is None:
             span = np.ptp(np.asarray(rest, np.float64), axis=0)
@@ -173,6 +133,13 @@ class Cloth:
         return self.rest.dtype
 
 
+def frozen_ids(ids) -> np.ndarray:
+    """``ids`` as a read-only int32 NumPy array (a topology, fixed per scene)."""
+    out = np.array(ids, np.int32)
+    out.flags.writeable = False
+    return out
+
+
 @pytree_dataclass
 class State:
     """Simulation state.
@@ -189,58 +156,6 @@ class State:
     def at_rest(cloth: Cloth) -> "State":
         """Rest positions with zero velocity."""
         return State(cloth.rest, jnp.zeros_like(cloth.rest))
-
-
-def incidence(springs: np.ndarray, n_particles: int) -> np.ndarray:
-    """Signed spring ids per particle, ``(N, D)`` int32 (see ``Cloth.incidence``)."""
-    springs = np.asarray(springs).reshape(-1, 2)
-    S = len(springs)
-    ends = np.concatenate([springs[:, 1], springs[:, 0]])
-    code = np.concatenate([np.arange(1, S + 1), -np.arange(1, S + 1)]).astype(np.int32)
-    order = np.argsort(ends, kind="stable")
-    ends, code = ends[order], code[order]
-    deg = np.bincount(ends, minlength=n_particles)
-    D = max(int(deg.max()) if S else 0, 1)
-    slot = np.arange(len(ends)) - np.repeat(np.cumsum(deg) - deg, deg)
-    out = np.zeros((n_particles, D), np.int32)
-    out[ends, slot] = code
-    return out
-
-
-def spring_diff(cloth: Cloth, v):
-    """``v_j - v_i`` for every spring ``(i, j)``: ``(N, ...) -> (S, ...)`` (shifted slices
-    on a grid layout, else a gather)."""
-    if cloth.stencil is not None:
-        return differences(cloth.stencil, v)
-    return v[cloth.springs[:, 1]] - v[cloth.springs[:, 0]]
-
-
-def spring_sum(cloth: Cloth, f, signed: bool = True):
-    """Per-particle sums of per-spring values ``f (S, ...)`` -> ``(N, ...)``.
-
-    ``signed``: ``+f_s`` at each spring's second end and ``-f_s`` at its first (the
-    assembly of spring forces); otherwise ``+f_s`` at both ends (the block diagonal).
-    Sums shifted slices on a grid layout (``cloth.stencil``), else gathers through
-    ``cloth.incidence`` when present, else scatter-adds.
-    """
-    if cloth.stencil is not None:
-        return sums(cloth.stencil, f, signed)
-    i, j = cloth.springs[:, 0], cloth.springs[:, 1]
-    if f.shape[0] == 0:
-        return jnp.zeros((cloth.num_particles,) + f.shape[1:], f.dtype)
-    if cloth.incidence is None:
-        out = jnp.zeros((cloth.num_particles,) + f.shape[1:], f.dtype).at[j].add(f)
-        return out.at[i].add(-f if signed else f)
-    inc = cloth.incidence
-    w = (jnp.sign(inc) if signed else jnp.abs(jnp.sign(inc))).astype(f.dtype)
-    w = w.reshape(w.shape + (1,) * (f.ndim - 1))
-    g = f[jnp.maximum(jnp.abs(inc) - 1, 0)]  # (N, D, ...)
-    # summed slot by slot (D is static): an einsum over D is a batched dot that XLA:CPU
-    # cannot fuse with the gather, and it costs as much as the rest of a CG iteration
-    out = w[:, 0] * g[:, 0]
-    for d in range(1, g.shape[1]):
-        out = out + w[:, d] * g[:, d]
-    return out
 
 
 def pin_mask(n_particles: int, ids) -> np.ndarray:
@@ -268,7 +183,7 @@ def grid_springs(n: int) -> tuple[np.ndarray, np.ndarray]:
     ``(i, j-1)``; 1 shear ``(i-1, j-1)``, ``(i-1, j+1)``; 2 bending ``(i-2, j)``, ``(i, j-2)``
     (each spring joins particle ``(i, j)`` to the one at that offset).  The springs come
     family by family, each in row-major order of ``(i, j)``: the layout of the grid
-    operator (``_stencil``), which the scene then applies by shifted slices.
+    operator (``_layout.stencil``), which the scene then applies by shifted slices.
     """
     m = n + 1
     fams = [(o, k) for o, k in GRID_FAMILIES if abs(o[0]) < m and abs(o[1]) < m]
@@ -337,6 +252,4 @@ def replace(cloth: Cloth, **kw) -> Cloth:
             kw[name] = jnp.full(shape, kw[name], cloth.dtype)
     if "damping" in kw and "damped" not in kw:
         kw["damped"] = True
-    if "springs" in kw and "incidence" not in kw:
-        kw["incidence"] = None  # recomputed from the new springs
     return dataclasses.replace(cloth, **kw)

@@ -1,0 +1,154 @@
+"""Newton's search direction (lab Algorithm 2's linear solve): the Hessian's parts at an
+iterate, and a dense or PCG solve of each Hessian that ``project_psd`` tries in turn."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+
+import jax
+import jax.numpy as jnp
+from jax import lax
+
+from ..._dataclass import pytree_dataclass
+from .._model import energy as en
+from .linsolve import dense_solve, pcg
+from .setup import NewtonSetup
+
+#: ``project_psd="auto"``: when the exact Hessian is not positive definite, the direction is
+#: first retried on the exact Hessian plus this many times the inertia term ``M / h^2``
+#: (a Levenberg-Marquardt shift in the mass metric, which keeps the springs' curvature),
+#: and only if that is still indefinite on the Hessian with every block clamped.  On scene C
+#: k = 1e5 (float64) the clamped Hessian alone left Newton creeping for over 30 iterations of
+#: one step at a relative gradient of 1e-6-1e-5; see docs/cloth.md, stiff cloth.
+SHIFT = 1.0
+
+
+@pytree_dataclass
+class Direction:
+    """One solve for a Newton direction.
+
+    Attributes:
+      dx: ``(N, 3)`` the direction (m).
+      cg: ``()`` int32 PCG iterations (0 for Cholesky), summed over the Hessians tried.
+      res: ``()`` relative residual of the solve (``inf`` if it broke down).
+      indefinite: ``()`` bool, the solve found its Hessian indefinite; ``None`` on the
+        direction chosen (:func:`first_definite`), whose ``hessian`` says which it is.
+      hessian: ``()`` int32 which Hessian gave ``dx`` (index into ``trace.HESSIANS``).
+    """
+
+    dx: jax.Array
+    cg: jax.Array
+    res: jax.Array
+    indefinite: jax.Array | None
+    hessian: jax.Array
+
+
+@dataclasses.dataclass(frozen=True)
+class HessianParts:
+    """The Hessian's parts at one iterate, shared by every direction of the iteration.
+
+    Attributes:
+      exact: the exact spring blocks; ``psd``: each projected PSD (``(S, 3, 3)``, or
+        planes for PCG on a grid: ``hessian``).
+      contact: the PSD contact blocks in PCG's layout (``(N, 3, 3)`` dense), or ``None``.
+      precond: the SPD preconditioner ``r -> z`` (``None`` for Cholesky).
+    """
+
+    exact: jax.Array
+    psd: jax.Array
+    contact: jax.Array | None
+    precond: Callable | None
+
+
+def _safe_ratio(num, den):
+    r = num / jnp.maximum(den, jnp.finfo(num.dtype).tiny)
+    return jnp.where(jnp.isfinite(r), r, jnp.inf)
+
+
+def hessian_parts(sv: NewtonSetup, w, terms) -> HessianParts:
+    """:class:`HessianParts` at ``w`` from its spring ``terms``."""
+    ops = sv.ops
+    A_exact = ops.blocks(w, terms, project_psd=False)
+    A_psd = ops.blocks(w, terms, project_psd=True)
+    C, C_cg = ops.contact(w)
+    if sv.dense:
+        return HessianParts(A_exact, A_psd, C, None)
+    return HessianParts(A_exact, A_psd, C_cg, ops.preconditioner(A_psd, C, C_cg))
+
+
+def dense(sv: NewtonSetup, b, H, indefinite=False) -> Direction:
+    """Cholesky (LU with ``indefinite=True``) on ``H (3N, 3N)`` with pinned rows and
+    columns replaced by the identity; Cholesky of an indefinite ``H`` gives non-finite values."""
+    f3 = sv.free3
+    H = H * f3[:, None] * f3[None, :] + jnp.diag(1.0 - f3)
+    dx = jnp.linalg.solve(H, b.reshape(-1)) if indefinite else dense_solve(H, b.reshape(-1))
+    res = _safe_ratio(jnp.linalg.norm(H @ dx - b.reshape(-1)), jnp.linalg.norm(b))
+    return Direction(dx.reshape(sv.N, 3), jnp.int32(0), res, ~jnp.all(jnp.isfinite(dx)), jnp.int32(0))
+
+
+def assembled(sv: NewtonSetup, A, C, inertia=1.0):
+    """The dense Hessian ``(3N, 3N)``: spring blocks ``A``, ``inertia M/h^2`` and contact ``C``."""
+    c, h, N = sv.p.cloth, sv.p.h, sv.N
+    H = en.assemble(c, A) + jnp.diag(inertia * jnp.repeat(c.mass, 3) / h**2)
+    if C is not None:
+        eye = jnp.eye(N, dtype=C.dtype)
+        H = H + (eye[:, None, :, None] * C[:, :, None, :]).reshape(3 * N, 3 * N)
+    return H
+
+
+def cg(sv: NewtonSetup, b, hvp, guess, Minv, tol, indefinite=False) -> Direction:
+    """PCG on ``ops.restricted(hvp)`` in its layout; ``b``, ``guess`` and ``dx`` ``(N, 3)``."""
+    ops = sv.ops
+    dx, k, res, broke = pcg(ops.restricted(hvp), ops.to_cg(b), ops.to_cg(guess * sv.free), Minv, tol=tol,
+                            max_iters=sv.linear.max_iters, indefinite=indefinite)
+    return Direction(ops.from_cg(dx), k, jnp.where(jnp.isfinite(res), res, jnp.inf), broke, jnp.int32(0))
+
+
+def first_definite(*tries) -> Direction:
+    """The first direction of ``tries`` (thunks returning a :class:`Direction`) whose
+    Hessian was not found indefinite, the last one regardless, with the index of that try
+    as ``hessian``; PCG iterations summed over the tries run.  ``project_psd="auto"`` has
+    three tries (exact, shifted, clamped), the other settings one."""
+    d = tries[0]()
+    chosen = dataclasses.replace(d, indefinite=None)
+    if len(tries) == 1:
+        return chosen
+
+    def rest():
+        d2 = first_definite(*tries[1:])
+        return dataclasses.replace(d2, cg=d.cg + d2.cg, hessian=d2.hessian + 1)
+
+    return lax.cond(d.indefinite, rest, lambda: chosen)
+
+
+def stationary(sv: NewtonSetup, b, parts: HessianParts, guess, tol) -> Direction:
+    """The exact Hessian solved through negative curvature (``hessian`` 3: a stationary point)."""
+    if sv.dense:
+        d = dense(sv, b, assembled(sv, parts.exact, parts.contact), indefinite=True)
+    else:
+        d = cg(sv, b, sv.ops.hvp(parts.exact, parts.contact), guess, parts.precond, tol, indefinite=True)
+    return dataclasses.replace(d, indefinite=None, hessian=jnp.int32(3))
+
+
+def minimising(sv: NewtonSetup, w, b, parts: HessianParts, guess, tol) -> Direction:
+    """The Newton direction on the Hessian that ``integ.project_psd`` picks (the first
+    definite one of exact, shifted and clamped with ``"auto"``)."""
+    projection, ops = sv.integ.project_psd, sv.ops
+    if sv.dense and projection is False:
+        return first_definite(lambda: dense(sv, b, jax.hessian(sv.objective)(w).reshape(3 * sv.N, 3 * sv.N)))
+    A_exact, A_psd, C, Minv = parts.exact, parts.psd, parts.contact, parts.precond
+    if sv.dense:
+        if projection is True:
+            return first_definite(lambda: dense(sv, b, assembled(sv, A_psd, C)))
+        return first_definite(lambda: dense(sv, b, assembled(sv, A_exact, C)),
+                              lambda: dense(sv, b, assembled(sv, A_exact, C, 1.0 + SHIFT)),
+                              lambda: dense(sv, b, assembled(sv, A_psd, C)))
+    if projection is True:
+        return first_definite(lambda: cg(sv, b, ops.hvp(A_psd, C), guess, Minv, tol))
+    if projection is False:  # the exact Hessian, through the autodiff Hessian-vector product
+        hvp = lambda v: ops.to_cg(jax.jvp(sv.grad, (w,), (ops.from_cg(v),))[1])  # noqa: E731
+        return first_definite(lambda: cg(sv, b, hvp, guess, Minv, tol))
+    return first_definite(lambda: cg(sv, b, ops.hvp(A_exact, C), guess, Minv, tol),
+                          lambda: cg(sv, b, ops.hvp(A_exact, C, 1.0 + SHIFT), guess, Minv, tol),
+                          lambda: cg(sv, b, ops.hvp(A_psd, C), guess, Minv, tol))

@@ -1,0 +1,78 @@
+"""Newton's backtracking line search (lab Algorithm 2, Armijo), bounded by IPC's CCD step."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+from jax import lax
+
+from ..._dataclass import pytree_dataclass
+from . import contact as ct
+from .setup import Evaluation, NewtonSetup
+
+#: Armijo constants of the backtracking line search (lab Algorithm 2).
+BETA, GAMMA = 0.5, 1e-4
+
+
+@pytree_dataclass
+class Trial:
+    """The point the line search accepted.
+
+    Attributes:
+      dx: ``(N, 3)`` the direction searched: the one given (0 on pins), or the scaled
+        negative gradient where that was not a descent direction (m).
+      alpha: ``()`` the step taken along ``dx``.
+      backtracks: ``()`` int32 halvings.
+      at: the :class:`~.setup.Evaluation` at ``w + alpha dx``.
+    """
+
+    dx: jax.Array
+    alpha: jax.Array
+    backtracks: jax.Array
+    at: Evaluation
+
+
+def first_step(sv: NewtonSetup, w, dx):
+    """1, or the largest step that crosses no collider's surface (IPC's CCD line search)."""
+    p = sv.p
+    if p.contact is None:
+        return jnp.ones((), sv.dtype)
+    return ct.step_bound(p.displacement(w), dx, p.x0, p.cloth, sv.free)
+
+
+def line_search(sv: NewtonSetup, w, gw, gvec, dx, full=False) -> Trial:
+    """Backtrack from ``w`` (objective ``gw``, gradient ``gvec``) along ``dx``.
+
+    The first trial is evaluated with its gradient and spring terms (one pass over the
+    springs), which are the Newton loop's next ones whenever the full step is accepted;
+    after a halving they are computed once at the accepted point.  ``full``: ``()`` bool,
+    take the first trial as it is (a stationary-point step)."""
+    integ, h = sv.integ, sv.p.h
+    dx = dx * sv.free
+    if not integ.line_search:
+        a = first_step(sv, w, dx)
+        return Trial(dx, a, jnp.int32(0), sv.evaluate(w + a * dx))
+    # keep every step a descent step
+    slope = jnp.sum(gvec * dx)
+    descent = (slope < 0) | full
+    dx = jnp.where(descent, dx, -gvec * h**2 / sv.m)
+    slope = jnp.where(descent, slope, jnp.sum(gvec * dx))
+    slack = 8 * sv.eps * jnp.abs(gw)  # g changes by less than its last bits at convergence
+    a0 = first_step(sv, w, dx)
+
+    def cond(s):
+        a, k, gnew = s
+        armijo = gnew <= gw + GAMMA * a * slope + slack
+        return (k < integ.max_backtracks) & ~(armijo & jnp.isfinite(gnew)) & ~full
+
+    def body(s):
+        a, k, _ = s
+        a = BETA * a
+        return a, k + 1, sv.objective(w + a * dx)
+
+    at0 = sv.evaluate(w + a0 * dx)
+    a, k, gnew = lax.while_loop(cond, body, (a0, jnp.int32(0), at0.g))
+    at = lax.cond(k == 0, lambda: at0, lambda: sv.evaluate(w + a * dx))
+    return Trial(dx, a, k, dataclasses.replace(at, g=gnew))  # g as the search computed it

@@ -1,0 +1,65 @@
+"""What every Newton iteration of one implicit step reads, fixed while tracing (``newton``)."""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+
+from ..._dataclass import pytree_dataclass
+from .._integrators import ImplicitEuler
+from .._linear import Cholesky
+from . import problem as pr
+from .hessian import hessian_ops
+
+
+@pytree_dataclass
+class Evaluation:
+    """``g`` and what comes with it at one ``w``, from one pass over the springs.
+
+    Attributes:
+      g: ``()`` the objective ``g(w)`` (J).
+      grad: ``(N, 3)`` ``grad g(w)`` on free particles, 0 on pinned ones (N).
+      terms: the spring terms at ``w`` (``problem.SpringTerms``).
+    """
+
+    g: jax.Array
+    grad: jax.Array
+    terms: pr.SpringTerms
+
+
+class NewtonSetup:
+    """The step problem, the settings and the pieces derived from them once per trace.
+
+    Args:
+      p: the step problem (``stop_gradient`` inputs).
+      integ: the ``ImplicitEuler`` settings.
+
+    Attributes:
+      linear: ``integ.linear(N)``: ``Cholesky()`` or ``CG(...)``.
+      dense: the linear solve is Cholesky.
+      ops: the Hessian's pieces in PCG's layout (``hessian.hessian_ops``).
+      free: ``(N, 1)`` 1.0 on free particles; ``free3``: ``(3N,)`` the same per coordinate.
+      m: ``(N, 1)`` masses (kg).
+    """
+
+    def __init__(self, p: pr.StepProblem, integ: ImplicitEuler):
+        self.p, self.integ = p, integ
+        c = p.cloth
+        self.N = c.num_particles
+        self.free = p.free
+        self.m = c.mass[:, None]
+        self.dtype = p.x0.dtype
+        self.eps = jnp.finfo(self.dtype).eps
+        self.linear = integ.linear(self.N)
+        self.dense = isinstance(self.linear, Cholesky)
+        self.objective = functools.partial(pr.incremental_potential, p=p)
+        self.grad = jax.grad(self.objective)
+        self.free3 = self.free.repeat(3, axis=1).reshape(-1)
+        self.ops = hessian_ops(p, self.linear)  # PCG on planes on a grid scene (``_layout``)
+
+    def evaluate(self, w) -> Evaluation:
+        """:class:`Evaluation` at ``w (N, 3)``: one pass over the springs."""
+        t = pr.spring_terms(w, self.p)
+        return Evaluation(pr.objective(w, self.p, t), pr.gradient(w, self.p, t) * self.free, t)
