@@ -177,6 +177,7 @@ def test_nearest_start_matches_brute_force():
         assert _image._nearest_start(todo, deg, pos) == want
 
 
+@pytest.mark.slow
 def test_zero_start_rotation_under_jit_is_the_identity():
     """Outside jit a zero quaternion raises; inside, where nothing can raise, it is the identity."""
     raises("zero quaternion", ik.fabrik, ARM, TARGETS[0], rotations=np.zeros((5, 4)))

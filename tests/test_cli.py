@@ -15,6 +15,8 @@ def test_demo_fast_writes_summary(tmp_path):
     assert "| circle | fabrik | 150 |" in text and "Cloth" in text
     assert str(out) in r.stdout or os.path.abspath(str(out)) in r.stdout
     assert "[demo] IK 1/7" in r.stdout and "[demo] cloth" in r.stdout  # progress per scene
+    assert "[demo] section 5/5, cloth with colliders: done in" in r.stdout
+    assert "(running" not in text  # the summary, written after every section, is complete
     from PIL import Image
 
     from jaxsim import curves
@@ -127,3 +129,27 @@ def test_bench_without_names_lists_and_runs_nothing():
     r = jaxsim_cli("bench")
     assert r.returncode == 0 and "ik_throughput" in r.stdout and "--all" in r.stdout
     assert "[bench]" not in r.stdout  # nothing started
+
+
+def test_stages_print_heartbeats_with_the_last_runs_time(tmp_path, monkeypatch, capsys):
+    """A long stretch prints a line every few seconds: elapsed, and the time left from the
+    last run of the same stretch (kept beside the compilation cache)."""
+    import time
+
+    from jaxsim._cli._progress import Stage
+
+    monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR", str(tmp_path))
+    with Stage("[demo]", "a stage", every=0.05):
+        time.sleep(0.3)
+    first = capsys.readouterr().out.splitlines()
+    assert first[0] == "[demo] a stage ..." and first[-1].startswith("[demo] a stage: done in")
+    assert sum("no earlier run to estimate from" in line for line in first) >= 3
+    with Stage("[demo]", "a stage", every=0.05):
+        time.sleep(0.2)
+    second = capsys.readouterr().out.splitlines()
+    assert second[0].startswith("[demo] a stage ... (the last run took")
+    assert any("s left (the last run took" in line for line in second[1:-1])
+    with pytest.raises(RuntimeError), Stage("[demo]", "a failing stage", every=0.05):
+        raise RuntimeError("boom")
+    assert "done" not in capsys.readouterr().out  # no estimate saved for work that failed
+

@@ -46,6 +46,7 @@ def test_aggregates_partition_the_particles():
 
 
 @pytest.mark.parametrize("pins", [None, [0, 1, 2, 3, 4, 5, 6, 7]])  # a whole aggregate pinned, too
+@pytest.mark.slow
 def test_two_level_is_symmetric_positive_definite(pins):
     c = stiff_grid(7, pins=pins)
     s = C.State.at_rest(c)

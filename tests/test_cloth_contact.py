@@ -79,6 +79,7 @@ def test_barrier_values_slope_and_nan_free_gradient():
     assert bool(jnp.all(jnp.isfinite(jax.jit(jax.vmap(jax.grad(jax.grad(_contact.f0)), in_axes=(0, None)))(y2, 1e-3))))
 
 
+@pytest.mark.slow
 def test_contact_blocks_are_the_projected_autodiff_hessian():
     from jaxsim.cloth._implicit import problem as _problem
 
@@ -176,6 +177,7 @@ def tilted(theta_deg, mu):
 
 
 @pytest.mark.parametrize("theta", [15.0, 40.0])
+@pytest.mark.slow
 def test_friction_holds_below_atan_mu_and_slides_above(theta):
     mu = 0.5
     c = tilted(theta, mu)

@@ -292,6 +292,7 @@ def undamped():
     return C.grid(6, 0.2, damping=0.0, dtype=np.float64)
 
 
+@pytest.mark.slow
 def test_converged_step_matches_scipy_reference(undamped):
     c = undamped
     rng = np.random.default_rng(4)
@@ -323,6 +324,7 @@ def test_single_newton_step_is_lab_17_23(undamped):
     np.testing.assert_allclose(s.x, ref, atol=1e-12)
 
 
+@pytest.mark.slow
 def test_dense_and_cg_agree(lab):
     s = C.State(jnp.asarray(perturbed(lab, 0.03, 6)).at[np.asarray(lab.pinned)].set(lab.rest[np.asarray(lab.pinned)]),
                 jnp.zeros_like(lab.rest))
@@ -346,6 +348,7 @@ def test_free_fall_matches_backward_euler_recursion():
         np.testing.assert_allclose(states.v[n], v, atol=1e-9)
 
 
+@pytest.mark.slow
 def test_stiff_damped_case_implicit_stable_explicit_flagged():
     c = C.grid(10, 0.2, mass=0.5, stiffness=300.0, damping=10.0, dtype=np.float64)
     s = C.State.at_rest(c)

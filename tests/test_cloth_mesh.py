@@ -111,3 +111,27 @@ def test_surface_plot_and_gif(tmp_path):
     viz.save(viz.plot_surface(V, T, cols), str(tmp_path / "s.png"))
     with pytest.raises(ValueError, match="triangles"):
         viz.plot_surface(V, T + len(V))
+
+
+def test_surfaces_sort_cloth_and_colliders_together_and_stand_on_the_floor(tmp_path):
+    """One depth-sorted collection holds the cloth's and the colliders' faces (a painter's
+    sort of everything), the box stands on a floor plane, and a legend names what is drawn;
+    GIFs are at least 480 px on their short side."""
+    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+    from PIL import Image
+
+    from jaxsim import viz
+
+    V, T = C.disk(3, 0.5)
+    V = V + [0.0, 0.6, 0.0]
+    cols = (C.Plane(np.array([0.0, 1.0, 0.0]), 0.0), C.Sphere(np.array([0.0, 0.3, 0.0]), 0.2))
+    fig = viz.plot_surface(V, T, cols)
+    ax = fig.axes[0]
+    polys = [c for c in ax.collections if isinstance(c, Poly3DCollection)]
+    assert len(polys) == 1 and len(polys[0].get_facecolor()) > len(T)  # cloth and colliders in one sort
+    assert ax.get_zlim()[0] == pytest.approx(-0.05 * (ax.get_zlim()[1] - ax.get_zlim()[0]) / 2, abs=1e-9)
+    assert [t.get_text() for t in ax.get_legend().get_texts()] == ["cloth", "floor (plane)", "sphere"]
+    viz.animate_surface(np.stack([V, V - [0.0, 0.1, 0.0]]), T, str(tmp_path / "s.gif"), colliders=cols)
+    assert min(Image.open(tmp_path / "s.gif").size) >= 480
+    assert viz.animate_surface(np.stack([V]), T, str(tmp_path / "d.gif"), dpi=50) == 1
+    assert Image.open(tmp_path / "d.gif").size == (200, 200)  # an explicit dpi is kept

@@ -38,6 +38,7 @@ def test_stability_sweep_24x24_short():
 
 @pytest.mark.parametrize("factor", [3.0, 0.01])
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.slow
 def test_stretched_and_crushed_start(factor, dtype):
     c = C.lab_cloth(dtype=dtype)
     centre = jnp.mean(c.rest, axis=0)
@@ -66,6 +67,7 @@ def test_all_pinned_no_pins_and_tiny_grid():
     assert bool(jnp.all(infos.stable)) and bool(jnp.all(jnp.isfinite(states.x)))
 
 
+@pytest.mark.slow
 def test_large_grid_with_cg():
     c = C.grid(127, 0.2, dtype=np.float32)
     assert c.num_particles == 128 * 128 and c.dtype == np.float32

@@ -33,6 +33,7 @@ def moving():
 
 
 @pytest.mark.parametrize("damping", [0.0, 0.3])
+@pytest.mark.slow
 def test_start_objective_is_the_incremental_potential_at_the_labs_start(moving, damping):
     c, _, s = moving
     c = C.replace(c, damping=damping)
@@ -225,6 +226,7 @@ def chunks(moving):
     return c, full, a, C.State(a[0].x[-1], a[0].v[-1])
 
 
+@pytest.mark.slow
 def test_resumed_rollouts_equal_one_rollout(chunks):
     """Two 3-step chunks with ``resume`` take the steps of one 6-step rollout: the same
     Newton iterations and positions, to the last bits.  A bare second chunk's velocities

@@ -72,6 +72,7 @@ def _backward_euler_residual(c, x0, v0, x, h):
     return np.max(np.linalg.norm(r, axis=1)[free]) / np.max(scale[free])
 
 
+@pytest.mark.slow
 def test_buckling_steps_of_scene_c_64_converge_at_a_stationary_point():
     """Scene C 64x64 at k = 1e3, 10 steps from rest, float64, two-level CG.  On its ninth and
     tenth steps the exact Hessian is indefinite near the solution; the shifted Hessian alone

@@ -263,6 +263,7 @@ def test_the_scene_holds_physics_and_the_layout_is_derived_apart():
     assert isinstance(layout_of(lab.springs, lab.rest), PlanarLayout)
 
 
+@pytest.mark.slow
 def test_a_scene_traced_whole_steps_as_a_concrete_one():
     """Under ``jit`` over the whole scene the springs are not known: the step sums by
     scatter-adds (a ``ParticleLayout`` without incidence) and gives the same state."""

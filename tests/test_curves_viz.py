@@ -126,6 +126,11 @@ def test_plots_and_animations_write_real_images(tmp_path, digit):
         frames.append(np.asarray(im.convert("L"), np.float64))
     assert all(np.mean(f < 200) > 0.005 for f in frames)
     assert np.abs(frames[0] - frames[-1]).max() > 0  # the chain moves
+    n = viz.animate_tracking(res, targets, str(tmp_path / "track3d.gif"), stride=4, plane="3d")
+    im = Image.open(tmp_path / "track3d.gif")
+    assert n == 3 and im.n_frames == 3 and min(im.size) >= 480  # the arm hanging from 1.7 m, slide-sized
+    with pytest.raises(ValueError, match="3d"):
+        viz.animate_tracking(res, targets, str(tmp_path / "x.gif"), plane="top")
 
     from jaxsim import cloth
 
@@ -156,7 +161,11 @@ def test_plot_and_animate_skeleton(tmp_path):
         assert len(fig.axes) == (1 if views == "3d" else len(views))
     frames = np.stack([P, P + [0.0, 0.1, 0.0], P + [0.0, 0.2, 0.0]])
     n = viz.animate_skeleton(H, frames, str(tmp_path / "h.gif"), effectors=eff, targets=frames[:, eff])
-    assert n == 3 and Image.open(tmp_path / "h.gif").n_frames == 3
+    im = Image.open(tmp_path / "h.gif")
+    assert n == 3 and im.n_frames == 3 and min(im.size) >= 480  # slide-sized by default
+    fig = viz.plot_skeleton(H, P, effectors=eff, targets=P[eff] + 0.1, trails=np.stack([P[eff]] * 3))
+    assert [t.get_text() for t in fig.legends[0].get_texts()] == ["bones", "joints", "root", "effectors", "targets",
+                                                                  "effector paths"]
     with pytest.raises(ValueError, match="views"):
         viz.plot_skeleton(H, P, views=("top",))
     with pytest.raises(ValueError, match="positions"):

@@ -45,6 +45,7 @@ def test_ik_implicit_gradient_equals_unrolled_at_converged_solution(solver):
 
 
 @pytest.mark.parametrize("solver", ["ccd", "fabrik"])
+@pytest.mark.slow
 def test_ik_implicit_gradients_finite_at_singular_poses(solver):
     arm = np.asarray(ik.lab_arm().offsets)
     straight = np.asarray(ik.straight_chain([1.0, 1.0, 1.0, 1.0], direction=(0, 0, 1)).offsets)

@@ -272,6 +272,7 @@ def test_humanoid_limits():
 
 
 @pytest.mark.parametrize("kind", SOLVERS)
+@pytest.mark.slow
 def test_track_keeps_limits_on_every_frame(kind):
     sk = tree((None, ik.SwingTwist(0.7, (-0.3, 0.3)), ik.Hinge((0, 0, 1), 0.0, 2.0), ik.Fixed(),
                ik.SwingTwist(0.9), None))

@@ -49,6 +49,7 @@ def test_unreachable_target_stretches_along_ray(solver, iters, dtype):
         assert int(res.iterations) == 1
 
 
+@pytest.mark.slow
 def test_fabrik_rotations_reproduce_positions(dtype):
     """The rotation rebuild: FK of the rebuilt rotations gives FABRIK's own positions."""
     rng = np.random.default_rng(0)
@@ -126,6 +127,7 @@ def test_fabrik_rotation_rebuild_folds_a_bone_back(unroll):
         np.testing.assert_allclose(got, P, atol=4 * np.finfo(dtype).eps)
 
 
+@pytest.mark.slow
 def test_lab_curves_float64_every_frame_converges():
     arm = ik.lab_arm()
     assert arm.offsets.dtype == np.float64
@@ -141,6 +143,7 @@ def test_lab_curves_float64_every_frame_converges():
         assert stats["fabrik"] < stats["ccd"]
 
 
+@pytest.mark.slow
 def test_track_max_step_angle_bounds_jitter(dtype):
     arm = ik.Chain(np.asarray(ik.lab_arm().offsets, dtype))
     targets = curves.cardioid()[:, None]
@@ -247,6 +250,7 @@ directions = st.tuples(st.floats(-1, 1), st.floats(-1, 1), st.floats(-1, 1)).fil
 
 @settings(max_examples=30, deadline=None)
 @given(lengths=chains6, direction=directions, frac=st.floats(0.05, 0.95), solver=st.sampled_from(["ccd", "fabrik"]))
+@pytest.mark.slow
 def test_property_lengths_root_and_convergence(lengths, direction, frac, solver):
     lengths = np.asarray(lengths)
     # a chain with a bend so the rest pose is generic

@@ -105,6 +105,7 @@ def test_tree_fk_matches_numpy_recursion():
 
 @settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(seed=st.integers(0, 2**31 - 1), kind=st.sampled_from(SOLVERS), unroll=st.booleans())
+@pytest.mark.slow
 def test_lean_chain_kernel_equals_the_tree_kernel_on_a_chain(seed, kind, unroll):
     """A chain solved for its end takes the lean chain kernel, rolled or unrolled; the tree
     kernel, run on the same problem, gives the same poses, errors and counts (the lean
@@ -130,6 +131,7 @@ def test_lean_chain_kernel_equals_the_tree_kernel_on_a_chain(seed, kind, unroll)
 
 # ---- Horn's rotation ----
 
+@pytest.mark.slow
 def test_horn_recovers_a_rotation_and_reduces_to_the_shortest_arc():
     rng = np.random.default_rng(3)
     best = jax.jit(_horn.best_rotation)
@@ -329,6 +331,7 @@ def test_settings_objects():
 
 
 @pytest.mark.parametrize("kind", SOLVERS)
+@pytest.mark.slow
 def test_track_on_a_tree(kind):
     sk = small_tree()
     s = np.linspace(0, 1, 6)[:, None]

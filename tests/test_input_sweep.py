@@ -72,6 +72,7 @@ def test_batch_rollout_checks_each_scene_state_against_its_colliders():
                             cloth.ExplicitEuler())
 
 
+@pytest.mark.slow
 def test_collider_path_of_another_kind_is_refused():
     sc = _sphere_drop(30.0)
     s0 = cloth.State.at_rest(sc)
@@ -108,6 +109,7 @@ def test_lm_gradient_matches_finite_differences_at_a_straight_chain(lm_chain):
     np.testing.assert_allclose(np.asarray(end), np.eye(3), atol=1e-3)  # within reach the end follows the target
 
 
+@pytest.mark.slow
 def test_lm_bends_a_collinear_chain(lm_chain):
     """On the chain's line at half reach, LM used to stay straight with error 1.0."""
     for solver in ("lm", "fabrik", "ccd"):

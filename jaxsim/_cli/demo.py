@@ -36,8 +36,9 @@ def _ik_section(out: str, fast: bool, lines: list[str]) -> None:
         stem = f"ik_{name}" + ("" if solver == "fabrik" else f"_{solver}")
         title = f"{name}, {solver}"
         viz.save(viz.plot_tracking(res, targets, title=title), os.path.join(out, stem + ".png"))
-        stride = 10 if fast else (2 if len(targets) > 200 else 1)
-        viz.animate_tracking(res, targets, os.path.join(out, stem + ".gif"), stride=stride, title=title)
+        stride = 10 if fast else (4 if len(targets) > 200 else 2)
+        viz.animate_tracking(res, targets, os.path.join(out, stem + ".gif"), stride=stride, title=title, plane="3d",
+                             fps=15)
         it = np.asarray(res.iterations)
         lines.append(f"| {name} | {solver} | {len(targets)} | {it.mean():.2f} | {it.max()} | "
                      f"{float(np.max(res.error)):.2e} | {bool(np.all(res.converged))} | "
@@ -96,14 +97,14 @@ def _limits_section(out: str, fast: bool, lines: list[str]) -> None:
     print(f"[demo] humanoid with joint limits, off and on ({len(targets)} frames) ...", flush=True)
     results = [ik.track(sk, targets, solver=ik.FABRIK(tol=1e-4), effectors=eff)
                for sk in (ik.humanoid(limits=False), H)]
-    shift = np.array([1.1, 0.0, 0.0])
+    shift = np.array([1.1, 0.0, 0.7])  # apart in both views: x (front) and z (side)
     P = np.concatenate([np.asarray(results[0].positions) - shift, np.asarray(results[1].positions) + shift], axis=1)
     T = np.concatenate([targets - shift, targets + shift], axis=1)
     J = H.num_joints
     parents = H.parents + tuple(J if p < 0 else p + J for p in H.parents)  # two figures, one drawing
     viz.animate_skeleton(parents, P, os.path.join(out, "humanoid_limits.gif"), effectors=eff + tuple(e + J for e in eff),
-                         targets=T, views=("front",), stride=10 if fast else 2,
-                         title="FABRIK: limits off (left) and on (right)", dpi=100)
+                         targets=T, views=("front", "side"), stride=10 if fast else 2,
+                         title="FABRIK: limits off (left) and on (right); the side view shows the elbows")
     lines += ["## IK: the humanoid with joint limits off and on (FABRIK on the tree)", "",
               "| limits | mean sweeps | max error (m) | frames converged | max limit violation (rad) | "
               "elbow angle range (°) | file |", "|---|---|---|---|---|---|---|"]
@@ -133,7 +134,7 @@ def _cloth_section(out: str, fast: bool, lines: list[str]) -> None:
     rep = cloth.energy_report(c, s0, states, infos)
     print("[demo] cloth: drawing cloth.gif ...", flush=True)
     xs = np.concatenate([np.asarray(s0.x)[None], np.asarray(states.x)])
-    viz.animate_cloth(c, xs, os.path.join(out, "cloth.gif"), stride=10 if fast else 2, fps=30, title="lab cloth")
+    viz.animate_cloth(c, xs, os.path.join(out, "cloth.gif"), stride=10 if fast else 4, fps=15, title="lab cloth")
     viz.save(viz.plot_cloth(c, xs[-1], title=f"lab cloth after {seconds:g} s"), os.path.join(out, "cloth.png"))
     lines += ["## Cloth: the lab cloth hanging from its two pinned corners", "",
               "| steps | ms/step | compile (s) | mean Newton | mean CG | all converged | stable | energy start (J) | energy end (J) | files |",
@@ -146,15 +147,24 @@ def _cloth_section(out: str, fast: bool, lines: list[str]) -> None:
 def run(out: str = "jaxsim-demo", fast: bool = False, checkpoint=None) -> int:
     """Write the demo into ``out``; ``checkpoint()`` (if given) runs after each section,
     so the CLI's manifest lists each section's files as soon as they are written."""
+    from ._progress import Stage
+
     t0 = time.perf_counter()
     os.makedirs(out, exist_ok=True)
-    lines = ["# jaxsim demo summary", "", f"Mode: {'fast' if fast else 'full'}.", ""]
-    for section in (_ik_section, _humanoid_section, _limits_section, _cloth_section, contact_section):
-        section(out, fast, lines)
+    mode = "fast" if fast else "full"
+    lines = ["# jaxsim demo summary", "", f"Mode: {mode}.", ""]
+    path = os.path.join(out, "summary.md")
+    sections = ((_ik_section, "IK on the lab arm"), (_humanoid_section, "the humanoid"),
+                (_limits_section, "the humanoid with limits"), (_cloth_section, "the lab cloth"),
+                (contact_section, "cloth with colliders"))
+    for k, (section, what) in enumerate(sections, start=1):
+        with Stage("[demo]", f"section {k}/{len(sections)}, {what}", key=f"demo {mode} {section.__name__}"):
+            section(out, fast, lines)
+        with open(path, "w") as f:  # row by row: the summary so far, after every section
+            f.write("\n".join(lines + ([] if k == len(sections) else ["(running: more sections follow)"])) + "\n")
         if checkpoint is not None:
             checkpoint()
     lines.append(f"Total wall time: {time.perf_counter() - t0:.1f} s")
-    path = os.path.join(out, "summary.md")
     with open(path, "w") as f:
         f.write("\n".join(lines) + "\n")
     print("\n".join(lines))

@@ -48,7 +48,7 @@ def contact_section(out: str, fast: bool, lines: list[str]) -> None:
     print(f"[demo] contact: {(n + 1) ** 2}-particle cloth onto a sphere, {steps} steps ...", flush=True)
     xs, infos, compile_s, run_s, gap = _run(sq, steps, dt)
     viz.animate_surface(xs, cloth.grid_triangles(n), os.path.join(out, "cloth_sphere.gif"), colliders=sq.colliders,
-                        stride=3 if fast else 2, title="cloth on a sphere, friction 0.4")
+                        stride=3 if fast else 2, title="cloth on a sphere, friction 0.4", elev=8.0)
     rows = [_row("square cloth onto a sphere", sq, steps, infos, compile_s, run_s, gap, "cloth_sphere.gif")]
 
     V, T = cloth.read_obj(cloth.TABLECLOTH_OBJ)
@@ -60,7 +60,7 @@ def contact_section(out: str, fast: bool, lines: list[str]) -> None:
           flush=True)
     xs, infos, compile_s, run_s, gap = _run(table, steps, dt)
     viz.animate_surface(xs, T, os.path.join(out, "cloth_floor.gif"), colliders=table.colliders,
-                        stride=3 if fast else 2, title="tablecloth.obj on the floor", elev=25.0)
+                        stride=3 if fast else 2, title="tablecloth.obj onto a floor and a capsule", elev=25.0)
     rows.append(_row("tablecloth.obj onto floor + capsule", table, steps, infos, compile_s, run_s, gap,
                      "cloth_floor.gif"))
     lines += ["## Cloth with colliders (IPC barrier, friction, no penetration)", "",

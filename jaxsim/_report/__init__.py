@@ -23,12 +23,15 @@ def run(out: str = "jaxsim-report", quick: bool = False) -> int:
            f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPU cores, jax {jax.__version__} "
            f"({jax.default_backend()}), matplotlib {matplotlib.__version__}.  Every number and figure below was "
            f"computed in this run{' (quick mode: small sizes)' if quick else ''}.")
-    _ik.run(doc)
-    _humanoid.humanoid_section(doc)
-    _limits.limits_section(doc)
-    _cloth.run(doc)
-    _contact.contact_section(doc)
-    _newton_log.newton_log_section(doc)
+    from .._cli._progress import Stage
+
+    sections = ((_ik.run, "IK on chains"), (_humanoid.humanoid_section, "the humanoid"),
+                (_limits.limits_section, "joint limits"), (_cloth.run, "cloth"),
+                (_contact.contact_section, "contact"), (_newton_log.newton_log_section, "the Newton log"))
+    for k, (section, what) in enumerate(sections, start=1):
+        with Stage("[report]", f"section {k}/{len(sections)}, {what}",
+                   key=f"report {'quick' if quick else 'full'} {section.__module__}.{section.__name__}"):
+            section(doc)
     doc.md(f"Total wall time: {time.perf_counter() - t0:.0f} s.")
     path = doc.write()
     doc.progress(f"wrote {os.path.abspath(path)} and {len(doc.figures)} figures")

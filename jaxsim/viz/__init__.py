@@ -2,7 +2,8 @@
 
 Every function draws on an Agg canvas of its own (no pyplot, no display needed) unless
 an ``ax`` is passed, returns the matplotlib ``Figure``, and writes a file when given a
-path.  GIFs are written with ``matplotlib.animation.PillowWriter``.
+path.  GIFs (``_gif``) are at least 480 px on their short side by default, quantised by
+Pillow without dithering; every drawing shares one palette (``_style``) and has a legend.
 """
 
 from ._cloth import animate_cloth, plot_cloth

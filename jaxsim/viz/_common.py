@@ -83,13 +83,20 @@ def world_cube(ax, mid, half):
     ax.set_xlabel("x (m)")
     ax.set_ylabel("z (m)")
     ax.set_zlabel("y (m)")
+    from ._style import tidy_3d
+
+    tidy_3d(ax)
 
 
-def world_limits(ax, pts):
+def world_limits(ax, pts, floor: float | None = None):
     """:func:`world_cube` around ``pts (..., 3)`` with a 10% margin; returns the centre and
-    half-width."""
+    half-width.  ``floor``: a height (m) that the box stands on (a horizontal plane
+    collider), so the floor is the bottom of the box rather than a slab floating in it."""
     pts = np.asarray(pts).reshape(-1, 3)
     lo, hi = pts.min(0), pts.max(0)
     c, r = 0.5 * (lo + hi), 0.55 * max(np.max(hi - lo), 1e-3)
+    if floor is not None:
+        c = c.copy()
+        c[1] = floor + 0.95 * r
     world_cube(ax, c, r)
     return c, r

@@ -6,14 +6,22 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._common import check_fps, check_frames, new_figure
+from . import _style as st
+from ._common import check_fps, check_frames, new_figure, world_limits
+from ._gif import GifWriter, gif_dpi
 
 _AXES = {"xy": (0, 1), "xz": (0, 2), "zy": (2, 1)}
 
 
-def _check_plane(plane):
-    if plane not in _AXES:
-        raise ValueError(f"plane must be one of {sorted(_AXES)}, got {plane!r}")
+def _check_plane(plane, allow_3d=False):
+    if plane not in _AXES and not (allow_3d and plane == "3d"):
+        raise ValueError(f"plane must be one of {sorted(_AXES) + (['3d'] if allow_3d else [])}, got {plane!r}")
+
+
+def _xzy(a):
+    """World ``(..., 3)`` as the 3D plot's ``(x, z, y)`` coordinate arrays (y up)."""
+    a = np.asarray(a, np.float64).reshape(-1, 3)
+    return a[:, 0], a[:, 2], a[:, 1]
 
 
 def _proj(a, plane):
@@ -38,11 +46,12 @@ def plot_chain(positions, target=None, ax=None, plane: str = "xz", color: str = 
     if ax is None:
         fig, ax = new_figure(4, 4)
     u, v = _proj(positions, plane)
-    ax.plot(u, v, "-o", color=color, lw=2, ms=4, label="chain")
+    ax.plot(u, v, "-", color=st.BONE if color == "C0" else color, lw=st.LIMB, solid_capstyle="round", label="chain")
+    st.joints(ax, u, v)
     ax.plot(u[:1], v[:1], "ks", ms=6, label="root")
     if target is not None:
         tu, tv = _proj(target, plane)
-        ax.plot([tu], [tv], "rx", ms=8, mew=2, label="target")
+        ax.plot([tu], [tv], "x", color=st.TARGET, ms=9, mew=2.5, label="target")
     ax.set_aspect("equal")
     ax.set_xlabel(f"{plane[0]} (m)")
     ax.set_ylabel(f"{plane[1]} (m)")
@@ -93,9 +102,9 @@ def plot_tracking(result, targets, plane: str = "xz", title: str = ""):
     ax, ax2 = fig.subplots(2, 1, gridspec_kw={"height_ratios": [3, 1]})
     _frame_axes(ax, targets, P, plane, title)
     tu, tv = _proj(targets, plane)
-    ax.plot(tu, tv, ":", color="0.5", label="target path")
+    ax.plot(tu, tv, ":", color=st.PATH, label="target path")
     eu, ev = _proj(P[:, -1], plane)
-    ax.plot(eu, ev, "-", color="C1", lw=1, label="end-effector trail")
+    ax.plot(eu, ev, "-", color=st.EFFECTOR, lw=1, label="end-effector trail")
     plot_chain(P[-1], targets[-1], ax=ax, plane=plane)
     ax.legend(loc="best", fontsize=7)
     ax2.semilogy(np.arange(len(err)), np.maximum(err, 1e-16), color="C2", label="|end - target|")
@@ -107,40 +116,75 @@ def plot_tracking(result, targets, plane: str = "xz", title: str = ""):
 
 
 def animate_tracking(result, targets, path: str, plane: str = "xz", fps: int = 30, stride: int = 1,
-                     title: str = "", dpi: int = 60):
+                     title: str = "", dpi: float | None = None):
     """Write a GIF of the chain tracing ``targets`` with the target path and the trail.
 
     Args:
       result: ``IKResult`` from ``jaxsim.ik.track`` on a chain.
       targets: ``(T, 1, 3)`` or ``(T, 3)``.
       path: output ``.gif`` path.
+      plane: as for :func:`plot_chain`, or ``"3d"``: a perspective view, y up (the lab arm
+        hangs from 1.7 m to the curves on the floor, which a top view foreshortens).
       fps: frames per second of the GIF.
       stride: draw every ``stride``-th frame.
+      dpi: resolution; default the least that gives a short side of 480 px (``_gif``).
 
     Returns:
       The number of frames written.
     """
-    from matplotlib.animation import PillowWriter
-
-    _check_plane(plane)
+    _check_plane(plane, allow_3d=True)
     fps = check_fps(fps)
     P = check_frames("result.positions", result.positions, (None, 3))
     targets = check_frames("targets", _end_targets(targets), (3,), frames=len(P))
-    fig, ax = new_figure(4, 4, dpi=dpi)
+    if plane == "3d":
+        return _animate_3d(P, targets, path, fps, stride, title, dpi)
+    fig, ax = new_figure(4, 4)
+    dpi = gif_dpi(fig, dpi)
     _frame_axes(ax, targets, P, plane, title)
     tu, tv = _proj(targets, plane)
-    ax.plot(tu, tv, ":", color="0.5", label="target path")
-    (trail,) = ax.plot([], [], "-", color="C1", lw=1, label="end-effector trail")
-    (bones,) = ax.plot([], [], "-o", color="C0", lw=2, ms=4, label="chain")
-    (tgt,) = ax.plot([], [], "rx", ms=8, mew=2, label="target")
-    ax.legend(loc="upper right", fontsize=6)
+    ax.plot(tu, tv, ":", color=st.PATH, label="target path")
+    (trail,) = ax.plot([], [], "-", color=st.EFFECTOR, lw=1.2, label="end-effector trail")
+    (bones,) = st.limbs(ax, [], [], label="chain")
+    (discs,) = st.joints(ax, [], [])
+    (tgt,) = ax.plot([], [], "x", color=st.TARGET, ms=9, mew=2.5, label="target")
+    st.legend(ax, fontsize=6)
     fig.tight_layout()
     frames = range(0, len(P), max(1, int(stride)))
-    writer = PillowWriter(fps=fps)
-    with writer.saving(fig, path, dpi):
+    with GifWriter(fig, path, fps, dpi) as writer:
         for t in frames:
             bones.set_data(*_proj(P[t], plane))
+            discs.set_data(*_proj(P[t], plane))
             trail.set_data(*_proj(P[: t + 1, -1], plane))
             tgt.set_data(*[[c] for c in _proj(targets[t], plane)])
-            writer.grab_frame()
+            writer.grab()
     return len(frames)
+
+
+def _animate_3d(P, targets, path, fps, stride, title, dpi):
+    """:func:`animate_tracking` in a perspective view."""
+    fig, ax = new_figure(4, 4, projection="3d")
+    dpi = gif_dpi(fig, dpi)
+    world_limits(ax, np.concatenate([P.reshape(-1, 3), targets]))
+    ax.plot(*_xzy(targets), ":", color=st.PATH, label="target path")
+    (trail,) = ax.plot([], [], [], "-", color=st.EFFECTOR, lw=1.2, label="end-effector trail")
+    (bones,) = st.limbs(ax, [], [], [], label="chain")
+    (discs,) = st.joints(ax, [], [], [])
+    (tgt,) = ax.plot([], [], [], "x", color=st.TARGET, ms=9, mew=2.5, label="target")
+    st.legend(ax, fontsize=6)
+    ax.set_title(title, fontsize=9)
+
+    def put(line, a):
+        u, v, w = _xzy(a)
+        line.set_data(u, v)
+        line.set_3d_properties(w)
+
+    frames = range(0, len(P), max(1, int(stride)))
+    with GifWriter(fig, path, fps, dpi) as writer:
+        for t in frames:
+            put(bones, P[t])
+            put(discs, P[t])
+            put(trail, P[: t + 1, -1])
+            put(tgt, targets[t])
+            writer.grab()
+    return len(frames)
+

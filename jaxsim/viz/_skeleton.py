@@ -8,7 +8,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import _style as st
 from ._common import check_fps, check_frames, world_cube
+from ._gif import GifWriter, gif_dpi
 
 _VIEWS = {"front": (0, 1), "side": (2, 1)}
 
@@ -27,7 +29,7 @@ def _check_views(views):
     return views
 
 
-def _figure(views, dpi, size=3.2):
+def _figure(views, dpi, size=3.2, everything=None):
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
@@ -35,9 +37,19 @@ def _figure(views, dpi, size=3.2):
         fig = Figure(figsize=(size + 0.8, size + 0.8), dpi=dpi)
         FigureCanvasAgg(fig)
         return fig, [fig.add_subplot(1, 1, 1, projection="3d")]
-    fig = Figure(figsize=(size * len(views), size + 0.4), dpi=dpi)
+    ratios = None
+    if everything is not None and views != "3d":  # each view as wide as its horizontal extent: one scale for all views
+        lo, hi = np.nanmin(everything, axis=0), np.nanmax(everything, axis=0)
+        ratios = [_half_extent(lo, hi, _VIEWS[v][0]) for v in views]
+    width, height = size * len(views), size + 0.7  # the legend row below
+    if ratios is not None:  # as tall as the drawing needs at that scale, plus titles, labels, legend
+        v = _half_extent(lo, hi, 1)  # the same measure as the ratios
+        height = float(np.clip((width - 0.8 * len(views)) * v / sum(ratios) + 1.6, 2.8, 1.4 * width))
+        k = 4.2 / min(width, height)  # text sized for a short side of about 4 inches
+        width, height = (width * k, height * k) if k < 1 else (width, height)
+    fig = Figure(figsize=(width, height), dpi=dpi)
     FigureCanvasAgg(fig)
-    axes = fig.subplots(1, len(views), squeeze=False)[0]
+    axes = fig.subplots(1, len(views), squeeze=False, gridspec_kw={"width_ratios": ratios})[0]
     return fig, list(axes)
 
 
@@ -61,16 +73,33 @@ def _coords(a, view):
     return a[:, i], a[:, j]
 
 
+def _half_extent(lo, hi, k):
+    """Half the plotted range along world axis ``k``: the data's, plus 5 % of the largest
+    extent (room for the effector rings), and at least 15 % of the largest."""
+    big = float(np.max(hi - lo))
+    return max(float(hi[k] - lo[k]) / 2 + 0.05 * big, 0.15 * big)
+
+
+def _figure_legend(fig, ax):
+    """One legend for all views, in a row under them (it covers no limb)."""
+    handles, labels = ax.get_legend_handles_labels()
+    top = 0.93 if fig.get_suptitle() else 1.0
+    if handles:
+        fig.legend(handles, labels, loc="lower center", ncol=len(handles), fontsize=7, frameon=False)
+    fig.tight_layout(rect=(0, 0.1 if handles else 0, 1, top))
+
+
 def _frame(axes, views, everything):
     lo, hi = np.nanmin(everything, axis=0), np.nanmax(everything, axis=0)
     mid, half = (lo + hi) / 2, max(float(np.max(hi - lo)) / 2 * 1.1, 1e-3)
     for ax, view in zip(axes, ["3d"] if views == "3d" else views):
         if view == "3d":
             world_cube(ax, mid, half)
-        else:
+        else:  # each view as large as its own extent (the figure's width ratios follow them)
             i, j = _VIEWS[view]
-            ax.set_xlim(mid[i] - half, mid[i] + half)
-            ax.set_ylim(mid[j] - half, mid[j] + half)
+            hu, hv = _half_extent(lo, hi, i), _half_extent(lo, hi, j)
+            ax.set_xlim(mid[i] - hu, mid[i] + hu)
+            ax.set_ylim(mid[j] - hv, mid[j] + hv)
             ax.set_aspect("equal")
             ax.set_xlabel(f"{'xyz'[i]} (m)")
             ax.set_ylabel("y (m)")
@@ -96,7 +125,6 @@ def plot_skeleton(skeleton, positions, effectors=(), targets=None, trails=None, 
     views = _check_views(views)
     P = check_frames("positions", positions, (3,), frames=len(parents))
     eff = [int(e) for e in effectors]
-    fig, axes = _figure(views, dpi)
     parts = [P]
     if targets is not None:
         parts.append(check_frames("targets", targets, (3,), frames=len(eff) or None))
@@ -105,26 +133,29 @@ def plot_skeleton(skeleton, positions, effectors=(), targets=None, trails=None, 
         if trails.ndim != 3 or trails.shape[-1] != 3:
             raise ValueError(f"trails must have shape (T, E, 3), got {trails.shape}")
         parts.append(trails.reshape(-1, 3))
-    for ax, view in zip(axes, ["3d"] if views == "3d" else views):
-        ax.plot(*_segments(parents, P, view), "-", color="C0", lw=2)
-        ax.plot(*_coords(P, view), "o", color="C0", ms=3)
-        ax.plot(*_coords(P[:1], view), "ks", ms=5)
+    fig, axes = _figure(views, dpi, everything=np.concatenate(parts))
+    for k, (ax, view) in enumerate(zip(axes, ["3d"] if views == "3d" else views)):
+        st.limbs(ax, *_segments(parents, P, view), label="bones")
+        st.joints(ax, *_coords(P, view), label="joints")
+        ax.plot(*_coords(P[:1], view), "s", color="k", ms=5, label="root")
         if eff:
-            ax.plot(*_coords(P[eff], view), "o", mfc="none", mec="C1", ms=9, mew=1.5)
+            ax.plot(*_coords(P[eff], view), "o", mfc="none", mec=st.EFFECTOR, ms=11, mew=2, ls="none",
+                    label="effectors")
         if targets is not None:
-            ax.plot(*_coords(targets, view), "rx", ms=7, mew=2)
+            ax.plot(*_coords(targets, view), "x", color=st.TARGET, ms=8, mew=2.5, ls="none", label="targets")
         if trails is not None:
-            for k in range(trails.shape[1]):
-                ax.plot(*_coords(trails[:, k], view), "-", color="C1", lw=0.8)
+            for e in range(trails.shape[1]):
+                ax.plot(*_coords(trails[:, e], view), "-", color=st.EFFECTOR, lw=1.0,
+                        label="effector paths" if e == 0 else None)
     _frame(axes, views, np.concatenate(parts))
     if title:
         fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
+    _figure_legend(fig, axes[0])
     return fig
 
 
 def animate_skeleton(skeleton, positions, path: str, effectors=(), targets=None, views=("front", "side"),
-                     fps: int = 30, stride: int = 1, title: str = "", dpi: int = 60):
+                     fps: int = 30, stride: int = 1, title: str = "", dpi: float | None = None):
     """Write a GIF of a skeleton moving, with its effectors' trails and targets.
 
     Args:
@@ -134,12 +165,11 @@ def animate_skeleton(skeleton, positions, path: str, effectors=(), targets=None,
       effectors: joint ids whose trails are drawn.
       targets: optional ``(T, E, 3)`` targets per frame.
       views, fps, stride: as in :func:`plot_skeleton`; every ``stride``-th frame is drawn.
+      dpi: resolution; default the least that gives a short side of 480 px (``_gif``).
 
     Returns:
       The number of frames written.
     """
-    from matplotlib.animation import PillowWriter
-
     parents = _parents(skeleton)
     views = _check_views(views)
     fps = check_fps(fps)
@@ -151,20 +181,25 @@ def animate_skeleton(skeleton, positions, path: str, effectors=(), targets=None,
         targets = np.asarray(targets, np.float64)
         if targets.shape != (len(P), len(eff), 3):
             raise ValueError(f"targets must have shape ({len(P)}, {len(eff)}, 3), got {targets.shape}")
-    fig, axes = _figure(views, dpi)
-    names = ["3d"] if views == "3d" else list(views)
     parts = [P.reshape(-1, 3)] + ([targets.reshape(-1, 3)] if targets is not None else [])
+    fig, axes = _figure(views, 80, everything=np.concatenate(parts))
+    dpi = gif_dpi(fig, dpi)
+    names = ["3d"] if views == "3d" else list(views)
     _frame(axes, views, np.concatenate(parts))
     if title:
         fig.suptitle(title, fontsize=10)
     arts = []
-    for ax in axes:
-        bones, = ax.plot([], [], "-", color="C0", lw=2)
-        rings, = ax.plot([], [], "o", mfc="none", mec="C1", ms=8, mew=1.5)
-        crosses, = ax.plot([], [], "rx", ms=7, mew=2)
-        trails = [ax.plot([], [], "-", color="C1", lw=0.8)[0] for _ in eff]
-        arts.append((bones, rings, crosses, trails))
-    fig.tight_layout()
+    empty = ([], [], []) if views == "3d" else ([], [])
+    for k, ax in enumerate(axes):
+        trails = [ax.plot(*empty, "-", color=st.EFFECTOR, lw=1.0, label="effector paths" if e == 0 else None)[0]
+                  for e in range(len(eff))]
+        bones, = st.limbs(ax, *empty, label="bones")
+        discs, = st.joints(ax, *empty)
+        rings, = ax.plot(*empty, "o", mfc="none", mec=st.EFFECTOR, ms=11, mew=2, ls="none", label="effectors")
+        crosses, = ax.plot(*empty, "x", color=st.TARGET, ms=8, mew=2.5, ls="none",
+                           label="targets" if targets is not None else None)
+        arts.append((bones, discs, rings, crosses, trails))
+    _figure_legend(fig, axes[0])
 
     def put(line, coords):
         line.set_data(coords[0], coords[1])
@@ -172,16 +207,16 @@ def animate_skeleton(skeleton, positions, path: str, effectors=(), targets=None,
             line.set_3d_properties(coords[2])
 
     frames = range(0, len(P), max(1, int(stride)))
-    writer = PillowWriter(fps=fps)
-    with writer.saving(fig, path, dpi):
+    with GifWriter(fig, path, fps, dpi) as writer:
         for t in frames:
-            for view, (bones, rings, crosses, trails) in zip(names, arts):
+            for view, (bones, discs, rings, crosses, trails) in zip(names, arts):
                 put(bones, _segments(parents, P[t], view))
+                put(discs, _coords(P[t], view))
                 if eff:
                     put(rings, _coords(P[t, eff], view))
                 if targets is not None:
                     put(crosses, _coords(targets[t], view))
                 for k, line in enumerate(trails):
                     put(line, _coords(P[: t + 1, eff[k]], view))
-            writer.grab_frame()
+            writer.grab()
     return len(frames)

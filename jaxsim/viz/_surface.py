@@ -5,6 +5,13 @@ from __future__ import annotations
 import numpy as np
 
 from ._common import check_fps, check_frames, new_figure, world_limits
+from ._gif import GifWriter, gif_dpi
+from ._style import CLOTH, FLOOR, SOLID, legend
+
+#: The cloth's faces sort this fraction of the scene's depth range nearer than they are, a
+#: polygon offset: a cloth resting on a collider (a contact gap away, far less than its
+#: triangles' size) is drawn over the collider faces it covers (``_depth_sorted``).
+FRONT = 0.05
 
 #: Light direction (world, y up) for the Lambert shading.
 LIGHT = np.array([0.4, 1.0, 0.3]) / np.linalg.norm([0.4, 1.0, 0.3])
@@ -17,13 +24,9 @@ def _check_triangles(triangles, n):
     return T
 
 
-def _shade(x, T, base=(0.25, 0.45, 0.85)):
+def _shade(x, T, base=CLOTH):
     """``(F, 4)`` RGBA face colours: Lambert shading, two-sided (cloth has no inside)."""
-    n = np.cross(x[T[:, 1]] - x[T[:, 0]], x[T[:, 2]] - x[T[:, 0]])
-    n /= np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-12)
-    lam = 0.35 + 0.65 * np.abs(n @ LIGHT)
-    rgb = np.clip(np.asarray(base)[None, :] * lam[:, None], 0, 1)
-    return np.concatenate([rgb, np.ones((len(T), 1))], axis=1)
+    return _lambert(_normals(x[T]), base)
 
 
 def _polys(x, T):
@@ -44,38 +47,106 @@ def _check_colliders(colliders) -> tuple:
     return tuple(colliders)
 
 
-def _draw_colliders(ax, colliders, center, radius):
-    """Spheres and capsules as light wireframes, planes as a translucent square."""
-    u, v = np.meshgrid(np.linspace(0, 2 * np.pi, 24), np.linspace(0, np.pi, 12))
+def _lambert(normals, base, alpha=1.0):
+    """``(F, 4)`` RGBA: two-sided Lambert shading of faces with unit ``normals (F, 3)``."""
+    lam = 0.35 + 0.65 * np.abs(normals @ LIGHT)
+    rgb = np.clip(np.asarray(base)[None, :] * lam[:, None], 0, 1)
+    return np.concatenate([rgb, np.full((len(normals), 1), alpha)], axis=1)
+
+
+def _grid_faces(P):
+    """Triangles ``(2 (m-1) (n-1), 3, 3)`` of a ``(m, n, 3)`` grid of points."""
+    a, b, c, d = P[:-1, :-1], P[1:, :-1], P[1:, 1:], P[:-1, 1:]
+    return np.concatenate([np.stack([a, b, c], -2).reshape(-1, 3, 3), np.stack([a, c, d], -2).reshape(-1, 3, 3)])
+
+
+def _normals(F):
+    n = np.cross(F[:, 1] - F[:, 0], F[:, 2] - F[:, 0])
+    return n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-12)
+
+
+def _collider_faces(colliders, center, radius):
+    """``(faces (F, 3, 3) world, rgba (F, 4))`` of every collider: spheres and capsules as
+    shaded solids, planes as a tiled translucent square around ``center`` (half-width
+    ``radius``).  They are drawn in one collection with the cloth's triangles, so
+    matplotlib's depth sort orders all faces together (a painter's algorithm, with the
+    cloth's faces offset toward the camera: ``FRONT``)."""
+    u, v = np.meshgrid(np.linspace(0, 2 * np.pi, 25), np.linspace(0, np.pi, 13))
     ball = np.stack([np.cos(u) * np.sin(v), np.cos(v), np.sin(u) * np.sin(v)], -1)
+    faces, colors = [], []
     for c in colliders:
         kind = type(c).__name__
+        parts = []
         if kind == "Sphere":
-            p = np.asarray(c.center) + float(c.radius) * ball
-            ax.plot_surface(p[..., 0], p[..., 2], p[..., 1], color="0.7", alpha=0.35, linewidth=0.2, edgecolor="0.5")
+            parts.append(_grid_faces(np.asarray(c.center) + float(c.radius) * ball))
         elif kind == "Capsule":
-            for end in (np.asarray(c.a), np.asarray(c.b)):
-                p = end + float(c.radius) * ball
-                ax.plot_wireframe(p[..., 0], p[..., 2], p[..., 1], color="0.6", linewidth=0.3)
-            seg = np.stack([np.asarray(c.a), np.asarray(c.b)])
-            ax.plot(seg[:, 0], seg[:, 2], seg[:, 1], color="0.4", linewidth=2)
+            a, b, r = np.asarray(c.a), np.asarray(c.b), float(c.radius)
+            parts += [_grid_faces(a + r * ball), _grid_faces(b + r * ball)]
+            axis = b - a
+            n = axis / max(np.linalg.norm(axis), 1e-12)
+            e1 = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 0.0, 1.0])
+            e1 /= np.linalg.norm(e1)
+            e2 = np.cross(n, e1)
+            th = np.linspace(0, 2 * np.pi, 25)
+            ring = r * (np.cos(th)[:, None] * e1 + np.sin(th)[:, None] * e2)
+            k = np.linspace(0.0, 1.0, max(2, int(np.ceil(np.linalg.norm(axis) / r)) + 1))  # faces about r long,
+            parts.append(_grid_faces(a + k[None, :, None] * axis + ring[:, None, :]))  # for the depth sort
+        if parts:
+            F = np.concatenate(parts)
+            faces.append(F)
+            colors.append(_lambert(_normals(F), SOLID))
         elif kind == "Plane":
             n, o = np.asarray(c.normal), float(c.offset)
             a = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 0.0, 1.0])
             a /= np.linalg.norm(a)
             b = np.cross(n, a)
             p0 = center - (center @ n - o) * n
-            s = np.linspace(-radius, radius, 2)
-            A, B = np.meshgrid(s, s)
-            P = p0 + A[..., None] * a + B[..., None] * b
-            ax.plot_surface(P[..., 0], P[..., 2], P[..., 1], color="0.8", alpha=0.3, linewidth=0)
+            t = np.linspace(-radius, radius, 9)
+            A, B = np.meshgrid(t, t, indexing="ij")
+            F = _grid_faces(p0 + A[..., None] * a + B[..., None] * b)
+            faces.append(F)
+            colors.append(_lambert(_normals(F), FLOOR, alpha=0.55))
+    if not faces:
+        return np.zeros((0, 3, 3)), np.zeros((0, 4))
+    return np.concatenate(faces), np.concatenate(colors)
+
+
+def _floor(colliders):
+    """The height of the highest horizontal plane collider (normal +y), or ``None``."""
+    ys = [float(c.offset) / float(np.asarray(c.normal)[1]) for c in colliders if type(c).__name__ == "Plane"
+          and abs(float(np.asarray(c.normal)[1])) > 0.999]
+    return max(ys) if ys else None
+
+
+def _depth_sorted(polys, rgba, n_cloth: int):
+    """One ``Poly3DCollection`` of ``polys`` whose first ``n_cloth`` faces (the cloth) sort
+    ``FRONT`` of the depth range nearer than their centroids (where matplotlib lets the
+    sort be set; otherwise its plain centroid sort)."""
+    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+
+    out = Poly3DCollection(polys, facecolors=rgba, linewidths=0, zsort="average")
+
+    def zsort(pzs, axis=-1):
+        z = np.array(np.average(pzs, axis=axis))
+        if z.size:
+            z[:n_cloth] -= FRONT * float(np.ptp(z))  # larger is farther: drawn first
+        return z
+
+    if hasattr(out, "_zsortfunc"):
+        out._zsortfunc = zsort
+    return out
+
+
+def _scene(x, T, colliders_faces):
+    """``(polys, rgba)`` of the cloth at ``x`` and the collider faces, in drawing order
+    ``(x, z, y)``, for one ``Poly3DCollection``."""
+    F, rgba = colliders_faces
+    return np.concatenate([_polys(x, T), F[..., [0, 2, 1]]]), np.concatenate([_shade(x, T), rgba])
 
 
 def plot_surface(x, triangles, colliders=(), ax=None, title: str = ""):
     """Draw the mesh ``triangles (F, 3)`` at positions ``x (N, 3)``, shaded, with the
     colliders.  Returns the figure."""
-    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
-
     x = np.asarray(x, np.float64)
     if x.ndim != 2 or x.shape[1] != 3:
         raise ValueError(f"x must have shape (N, 3), got {x.shape}")
@@ -86,40 +157,54 @@ def plot_surface(x, triangles, colliders=(), ax=None, title: str = ""):
     colliders = _check_colliders(colliders)
     if ax is None:
         fig, ax = new_figure(4.5, 4.5, projection="3d")
-    c, r = world_limits(ax, x)
-    _draw_colliders(ax, colliders, c, r)
-    ax.add_collection3d(Poly3DCollection(_polys(x, T), facecolors=_shade(x, T), linewidths=0))
+    c, r = world_limits(ax, x, _floor(colliders))
+    polys, rgba = _scene(x, T, _collider_faces(colliders, c, r))
+    ax.add_collection3d(_depth_sorted(polys, rgba, len(T)))
+    _legend(ax, colliders)
     ax.set_title(title)
     return ax.figure
 
 
+def _legend(ax, colliders):
+    """Patches for the cloth and each kind of collider drawn."""
+    from matplotlib.patches import Patch
+
+    kinds = dict.fromkeys(type(c).__name__ for c in colliders)
+    handles = [Patch(color=CLOTH, label="cloth")] + [
+        Patch(color=FLOOR if k == "Plane" else SOLID, label={"Plane": "floor (plane)"}.get(k, k.lower()))
+        for k in kinds]
+    legend(ax, handles=handles)
+
+
 def animate_surface(xs, triangles, path: str, colliders=(), fps: int = 30, stride: int = 1, title: str = "",
-                    dpi: int = 60, elev: float = 20.0, azim: float = -60.0):
-    """Write a GIF of the shaded mesh over ``xs (T, N, 3)``, with the (static) colliders.
+                    dpi: float | None = None, elev: float = 20.0, azim: float = -60.0):
+    """Write a GIF of the shaded mesh over ``xs (T, N, 3)``, with the (static) colliders
+    depth-sorted together with it, and a legend.
 
-    Returns the frame count.
+    ``dpi``: default the least that gives a short side of 480 px (``_gif``); ``elev`` and
+    ``azim``: the camera (degrees, matplotlib's).  Returns the frame count.
     """
-    from matplotlib.animation import PillowWriter
-    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
-
     fps = check_fps(fps)
     xs = np.asarray(xs, np.float64)
     xs = check_frames("xs", xs, (xs.shape[-2] if xs.ndim == 3 else -1, 3))
     T = _check_triangles(triangles, xs.shape[1])
     colliders = _check_colliders(colliders)
-    fig, ax = new_figure(4, 4, dpi=dpi, projection="3d")
+    fig, ax = new_figure(4, 4, projection="3d")
+    dpi = gif_dpi(fig, dpi)
     ax.view_init(elev=elev, azim=azim)
-    c, r = world_limits(ax, xs.reshape(-1, 3))
-    _draw_colliders(ax, colliders, c, r)
-    surf = Poly3DCollection(_polys(xs[0], T), facecolors=_shade(xs[0], T), linewidths=0)
+    c, r = world_limits(ax, xs.reshape(-1, 3), _floor(colliders))
+    solids = _collider_faces(colliders, c, r)
+    polys, rgba = _scene(xs[0], T, solids)
+    surf = _depth_sorted(polys, rgba, len(T))
     ax.add_collection3d(surf)
-    txt = ax.set_title(title)
+    _legend(ax, colliders)
+    txt = ax.set_title(title, fontsize=9)
     frames = range(0, len(xs), max(1, int(stride)))
-    writer = PillowWriter(fps=fps)
-    with writer.saving(fig, path, dpi):
+    with GifWriter(fig, path, fps, dpi) as writer:
         for t in frames:
-            surf.set_verts(_polys(xs[t], T))
-            surf.set_facecolor(_shade(xs[t], T))
+            polys, rgba = _scene(xs[t], T, solids)
+            surf.set_verts(polys)
+            surf.set_facecolor(rgba)
             txt.set_text(f"{title}  step {t + 1}" if title else f"step {t + 1}")
-            writer.grab_frame()
+            writer.grab()
     return len(frames)
