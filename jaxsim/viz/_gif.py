@@ -59,9 +59,3 @@ class GifWriter:
                                 disposal=1, optimize=False)
         self.frames = []
         return False
-
-    @property
-    def size(self) -> tuple[int, int]:
-        """``(width, height)`` of the frames in pixels."""
-        w, h = self.fig.get_size_inches() * self.fig.dpi
-        return int(round(w)), int(round(h))

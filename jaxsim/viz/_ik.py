@@ -31,7 +31,7 @@ def _proj(a, plane):
     return a[..., i], a[..., j]
 
 
-def plot_chain(positions, target=None, ax=None, plane: str = "xz", color: str = "C0"):
+def plot_chain(positions, target=None, ax=None, plane: str = "xz", color: str | None = None):
     """Draw one pose: bones as lines, joints as dots, the target as a cross.
 
     Args:
@@ -46,7 +46,7 @@ def plot_chain(positions, target=None, ax=None, plane: str = "xz", color: str = 
     if ax is None:
         fig, ax = new_figure(4, 4)
     u, v = _proj(positions, plane)
-    ax.plot(u, v, "-", color=st.BONE if color == "C0" else color, lw=st.LIMB, solid_capstyle="round", label="chain")
+    ax.plot(u, v, "-", color=st.BONE if color is None else color, lw=st.LIMB, solid_capstyle="round", label="chain")
     st.joints(ax, u, v)
     ax.plot(u[:1], v[:1], "ks", ms=6, label="root")
     if target is not None:

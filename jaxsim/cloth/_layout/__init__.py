@@ -11,7 +11,7 @@ tracing, and passed beside the scene:
   are square blocks of the grid.  Static: no arrays.
 * :class:`ParticleLayout`: any other spring table.  Per-particle sums gather through an
   incidence table (scatter-adds when it is absent), PCG runs on ``(N, 3)`` vectors and the
-  aggregates are the cells of a voxel grid over the rest shape (``_implicit.coarse.aggregate``).
+  aggregates are the cells of a voxel grid over the rest shape (``_layout.aggregates.aggregate``).
 
 Both give the same sums (tested equal); the layout only decides how they are computed.
 """

@@ -31,7 +31,7 @@ def _digest(a) -> bytes:
     return hashlib.blake2b(a.tobytes() + str((a.dtype, a.shape)).encode(), digest_size=16).digest()
 
 
-#: The last layouts by the identity of their (immutable) ``jax.Array`` inputs, so that a
+#: The last layouts by the identity of their immutable inputs (``_immutable``), so that a
 #: scene stepped one call at a time is not hashed again at every call.
 _BY_ID: OrderedDict = OrderedDict()
 
@@ -53,9 +53,7 @@ def layout_of(springs, rest) -> Layout:
         return hit[2]
     out = _layout_of(springs, rest, N)
     if _immutable(springs) and _immutable(rest):
-        _BY_ID[ident] = (weakref.ref(springs), weakref.ref(rest), out)
-        while len(_BY_ID) > _CACHE_SIZE:
-            _BY_ID.popitem(last=False)
+        _remember(_BY_ID, ident, (weakref.ref(springs), weakref.ref(rest), out))
     return out
 
 
@@ -70,7 +68,7 @@ def _layout_of(springs, rest, N: int) -> Layout:
     st = _CACHE.get(key)
     if st is None:
         st = detect(s, N) or False
-        _remember(key, st)
+        _remember(_CACHE, key, st)
     if st:
         return PlanarLayout(st, grid_block(st.rows, st.cols))
     key_rest = key + (_digest(rest) if is_concrete(rest) else None,)
@@ -78,7 +76,7 @@ def _layout_of(springs, rest, N: int) -> Layout:
     if out is None:
         ids, count = aggregate(np.asarray(rest)) if is_concrete(rest) else index_aggregates(N)
         out = ParticleLayout(jnp.asarray(incidence(s, N)), jnp.asarray(ids), count)
-        _remember(key_rest, out)
+        _remember(_CACHE, key_rest, out)
     return out
 
 
@@ -109,10 +107,11 @@ def batch_layout(springs, rest) -> tuple[Layout, bool]:
     return ParticleLayout(jnp.asarray(inc), jnp.asarray(np.broadcast_to(ids, (len(s), N))), count), True
 
 
-def _remember(key, value) -> None:
-    _CACHE[key] = value
-    while len(_CACHE) > _CACHE_SIZE:
-        _CACHE.popitem(last=False)
+def _remember(cache: OrderedDict, key, value) -> None:
+    """Put ``value`` in ``cache``, dropping the oldest entries beyond ``_CACHE_SIZE``."""
+    cache[key] = value
+    while len(cache) > _CACHE_SIZE:
+        cache.popitem(last=False)
 
 
 def spring_diff(cloth, v, layout: Layout | None = None):

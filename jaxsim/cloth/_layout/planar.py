@@ -16,7 +16,7 @@ class PlanarLayout:
     Attributes:
       stencil: static, the grid layout (``_layout.stencil.Stencil``).
       block: static, the side ``b`` of the square particle blocks that aggregate the grid
-        for the two-level preconditioner (``_implicit.coarse.grid_block``).
+        for the two-level preconditioner (``_layout.aggregates.grid_block``).
     """
 
     stencil: Stencil = static_field()

@@ -101,7 +101,7 @@ def block_sums(st: Stencil, A):
 
 
 # -- the two-level preconditioner's coarse space on a grid: square blocks of b x b particles
-# (``_implicit.coarse.grid_block``), so that restriction and prolongation are block sums and copies.
+# (``_layout.aggregates.grid_block``), so that restriction and prolongation are block sums and copies.
 
 def _block_grid(st: Stencil, b: int) -> tuple[int, int]:
     return block_grid(st.rows, st.cols, b)
