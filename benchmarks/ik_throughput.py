@@ -100,7 +100,7 @@ def humanoid_case(record, n_sets=10_000):
     return out
 
 
-def limits_case(record, n_sets=1000, n_lm=16):
+def limits_case(record, n_sets=1000):
     """The humanoid with its joint limits: all three solvers to tol 1e-4 (<= 100 iterations,
     early exit) on float32 target sets made by FK of random poses projected onto the limits,
     plus LM on the free humanoid for comparison."""
@@ -114,8 +114,8 @@ def limits_case(record, n_sets=1000, n_lm=16):
                                 ("lm_free", ik.humanoid(np.float32, limits=False), "lm")):
         fn = jax.jit(lambda t, model=model, solver=solver: ik.solve(model, t, solver=solver, effectors=eff,
                                                                     max_iters=100, tol=1e-4, early_exit=True))
-        Tn = T[:n_lm] if solver == "lm" else T  # LM costs ~1000x more per set: a smaller batch
-        timing = time_call(fn, Tn, repeats=1 if solver == "lm" else 2)
+        Tn = T  # every solver on the same sets
+        timing = time_call(fn, Tn, repeats=2)
         res = fn(Tn)
         conv = np.asarray(res.converged)
         extra = {"mean_iterations": float(jnp.mean(res.iterations)),

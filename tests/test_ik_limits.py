@@ -234,6 +234,41 @@ def test_lm_on_a_chain_jit_vmap_and_honest_counts():
     np.testing.assert_array_equal(ee.iterations, eager.iterations)
 
 
+@pytest.mark.parametrize("limits, orient", [(True, False), (True, True), (False, True)])
+def test_geometric_jacobian_equals_jacfwd(limits, orient):
+    """LM's Jacobian from one FK pass (hinges one column, fixed joints none) against
+    ``jax.jacfwd`` of its residual, at a random pose, float64."""
+    from jaxsim._geometry import quat as Q
+    from jaxsim.ik import _lm
+    from jaxsim.ik._limits import limit_table
+    from jaxsim.ik._pose import OrientTargets
+    from jaxsim.ik._skeleton import topology
+
+    rng = np.random.default_rng(11)
+    H = ik.humanoid(np.float64, limits=limits)
+    eff = tuple(H.index(n) for n in ik.HUMANOID_EFFECTORS)
+    table, topo = limit_table(H), topology(H.parents, eff)
+    L = jnp.asarray(random_rotations(rng, (H.num_joints,), np.pi))
+    tgt = [Q.unstack(jnp.asarray(rng.normal(size=3))) for _ in eff]
+    w = [jnp.asarray(1.0 + k) for k in range(len(eff))]
+    ori = None
+    if orient:
+        qs = random_rotations(rng, (len(eff),), np.pi)
+        ori = OrientTargets([Q.unstack(jnp.asarray(q)) for q in qs], [jnp.asarray(0.7) for _ in eff])
+    dofs = _lm._dofs(topo, table, ori is not None)
+    n = sum(1 if h else 3 for _, h in dofs)
+    assert any(h for _, h in dofs) == limits  # a hinge takes one column
+
+    def residual(d):
+        return _lm._residual(topo, H.offsets, _lm._perturb(L, d, dofs, table), tgt, w, ori)[0]
+
+    expected = jax.jacfwd(residual)(jnp.zeros(n))
+    got, r = _lm.geometric_jacobian(topo, H.offsets, L, tgt, w, ori, dofs, table)
+    assert got.shape == expected.shape == (len(eff) * (12 if orient else 3), n)
+    np.testing.assert_allclose(got, expected, atol=1e-10, rtol=0)
+    np.testing.assert_allclose(r, residual(jnp.zeros(n)), atol=0, rtol=0)
+
+
 @pytest.mark.slow
 def test_lm_gradients_and_singular_pose():
     sk = ik.Chain(np.array([[0, 0, 0], [1.0, 0, 0], [0.8, 0, 0]]), limits=(None, ik.Hinge((0, 0, 1), -2.0, 2.0), None))

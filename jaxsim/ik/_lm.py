@@ -9,8 +9,9 @@ per effector ``k``, ``sqrt(w_k) (p_k - t_k)`` and, with orientation targets,
 ``sum_k w_k (|p_k - t_k|^2 + c_k^2 4 sin^2(angle_k / 2))``, the objective the tree CCD
 minimises joint by joint.
 
-Each iteration takes the Jacobian ``J`` of the residual by ``jax.jacfwd`` of the tree FK
-and solves ``(J^T J + mu I) d = -J^T r`` by Cholesky, ``mu = lambda trace(J^T J) / n``.
+Each iteration takes the geometric Jacobian ``J`` of the residual from one FK pass
+(``geometric_jacobian``; equal to ``jax.jacfwd`` of the residual, and far cheaper on
+XLA:CPU, docs/ik.md) and solves ``(J^T J + mu I) d = -J^T r`` by Cholesky, ``mu = lambda trace(J^T J) / n``.
 IK is redundant, so ``J^T J`` is always singular: the damping makes the system
 positive definite (``lambda >= LAMBDA_MIN``, so its condition number stays below
 ``n / LAMBDA_MIN``), and the step is the damped least-change one (Levenberg 1944;
@@ -115,6 +116,49 @@ def _residual(topo, offsets, L, tgt, w, orient):
     return r, functools.reduce(jnp.maximum, effector_sq_errors(topo, P, G, tgt, orient))
 
 
+def _ancestry(parents, e):
+    """Static set of ``e`` and its ancestors."""
+    out = set()
+    while e >= 0:
+        out.add(e)
+        e = parents[e] if e > 0 else -1
+    return out
+
+
+def geometric_jacobian(topo, offsets, L, tgt, w, orient, dofs, table):
+    """``(J, r)``: the residual's Jacobian ``(m, n)`` from one FK pass, and the residual ``(m,)``.
+
+    Turning joint ``i`` on the right by ``d`` turns everything below it about the world axis
+    ``omega = R(G_i) d`` through the joint's position ``p_i``, so the position rows of effector
+    ``e`` are ``omega_u x (p_e - p_i)`` per parameter axis ``u`` and its orientation rows
+    ``omega_u x (R_e v)`` per frame axis ``v``; both are zero unless ``i`` is ``e`` or one of
+    its ancestors (the geometric Jacobian, Orin and Schrader 1984; Buss 2004 §2).  A hinge has
+    one axis, its own.  Equal to ``jax.jacfwd`` of the residual at ``d = 0`` (tested).
+    """
+    P, G = _pose(topo, offsets, L)
+    dtype = offsets.dtype
+    zero = jnp.zeros((3,), dtype)
+    axes = []  # per parameter: (joint, world axis tuple)
+    for i, hinge in dofs:
+        locals_ = [_quat.unstack(table.axis[i])] if hinge else [_quat.unstack(u.astype(dtype)) for u in _AXES]
+        axes.extend((i, _quat.rotate(G[i], u)) for u in locals_)
+    r, _ = _residual(topo, offsets, L, tgt, w, orient)
+
+    def block(e, scale, lever):
+        anc = _ancestry(topo.parents, e)
+        cols = [scale * _quat.stack(_quat.cross(om, lever(i))) if i in anc else zero for i, om in axes]
+        return jnp.stack(cols, axis=1)
+
+    rows = [block(e, jnp.sqrt(w[k]), lambda i, e=e: _quat.sub(P[e], P[i])) for k, e in enumerate(topo.effectors)]
+    if orient is not None:
+        for k, e in enumerate(topo.effectors):
+            c = jnp.sqrt(0.5 * w[k]) * orient.weights[k]
+            for u in _AXES:
+                Ru = _quat.rotate(G[e], _quat.unstack(u.astype(dtype)))
+                rows.append(block(e, c, lambda i, Ru=Ru: Ru))
+    return jnp.concatenate(rows, axis=0), r
+
+
 def lm_one(offsets, targets, local0, weights, tol, table, orients, orient_weights, damping, *, topo, max_iters,
            trace, early_exit):
     """One LM solve: ``targets (E, 3)``, ``local0 (J, 4)``, ``orients (E, 4)`` or ``None``.
@@ -138,10 +182,7 @@ def lm_one(offsets, targets, local0, weights, tol, table, orients, orient_weight
         return _quat.stack([_quat.stack(q) for q in project_all(table, [_quat.unstack(L[i]) for i in range(J)])])
 
     def jac(L):
-        def f(d):
-            r, _ = res(_perturb(L, d, dofs, table))
-            return r, r
-        return jax.jacfwd(f, has_aux=True)(jnp.zeros((n,), dtype))
+        return geometric_jacobian(topo, offsets, L, tgt, w, orient, dofs, table)
 
     hinge_at = [k for k, _ in enumerate(dofs_index(dofs)) if dofs_index(dofs)[k][1]]
 
