@@ -104,25 +104,20 @@ def _pose(topo, offsets, L):
 
 def _residual(topo, offsets, L, tgt, w, orient):
     """``(r, sq_errors)``: the stacked residual and the per-effector squared errors."""
-    P, G = _pose(topo, offsets, L)
+    return _residual_at(topo, *_pose(topo, offsets, L), tgt, w, orient)
+
+
+def _residual_at(topo, P, G, tgt, w, orient):
+    """``_residual`` at the pose's world positions ``P`` and frames ``G`` (lists of tuples)."""
     parts = [jnp.sqrt(w[k]) * (_quat.stack(P[e]) - _quat.stack(tgt[k])) for k, e in enumerate(topo.effectors)]
     if orient is not None:
         for k, e in enumerate(topo.effectors):
             c = jnp.sqrt(0.5 * w[k]) * orient.weights[k]
             for u in _AXES:
-                u = _quat.unstack(u.astype(L.dtype))
+                u = _quat.unstack(u.astype(parts[0].dtype))
                 parts.append(c * (_quat.stack(_quat.rotate(G[e], u)) - _quat.stack(_quat.rotate(orient.rotations[k], u))))
     r = jnp.concatenate(parts)
     return r, functools.reduce(jnp.maximum, effector_sq_errors(topo, P, G, tgt, orient))
-
-
-def _ancestry(parents, e):
-    """Static set of ``e`` and its ancestors."""
-    out = set()
-    while e >= 0:
-        out.add(e)
-        e = parents[e] if e > 0 else -1
-    return out
 
 
 def geometric_jacobian(topo, offsets, L, tgt, w, orient, dofs, table):
@@ -142,20 +137,20 @@ def geometric_jacobian(topo, offsets, L, tgt, w, orient, dofs, table):
     for i, hinge in dofs:
         locals_ = [_quat.unstack(table.axis[i])] if hinge else [_quat.unstack(u.astype(dtype)) for u in _AXES]
         axes.extend((i, _quat.rotate(G[i], u)) for u in locals_)
-    r, _ = _residual(topo, offsets, L, tgt, w, orient)
+    r, _ = _residual_at(topo, P, G, tgt, w, orient)
 
-    def block(e, scale, lever):
-        anc = _ancestry(topo.parents, e)
+    def block(k, scale, lever):
+        anc = set(topo.path[k])  # the effector and its ancestors
         cols = [scale * _quat.stack(_quat.cross(om, lever(i))) if i in anc else zero for i, om in axes]
         return jnp.stack(cols, axis=1)
 
-    rows = [block(e, jnp.sqrt(w[k]), lambda i, e=e: _quat.sub(P[e], P[i])) for k, e in enumerate(topo.effectors)]
+    rows = [block(k, jnp.sqrt(w[k]), lambda i, e=e: _quat.sub(P[e], P[i])) for k, e in enumerate(topo.effectors)]
     if orient is not None:
         for k, e in enumerate(topo.effectors):
             c = jnp.sqrt(0.5 * w[k]) * orient.weights[k]
             for u in _AXES:
                 Ru = _quat.rotate(G[e], _quat.unstack(u.astype(dtype)))
-                rows.append(block(e, c, lambda i, Ru=Ru: Ru))
+                rows.append(block(k, c, lambda i, Ru=Ru: Ru))
     return jnp.concatenate(rows, axis=0), r
 
 
