@@ -234,7 +234,8 @@ def test_lm_on_a_chain_jit_vmap_and_honest_counts():
     np.testing.assert_array_equal(ee.iterations, eager.iterations)
 
 
-@pytest.mark.parametrize("limits, orient", [(True, False), (True, True), (False, True)])
+@pytest.mark.parametrize("limits, orient", [pytest.param(True, False, marks=pytest.mark.slow), (True, True),
+                                            pytest.param(False, True, marks=pytest.mark.slow)])
 def test_geometric_jacobian_equals_jacfwd(limits, orient):
     """LM's Jacobian from one FK pass (hinges one column, fixed joints none) against
     ``jax.jacfwd`` of its residual, at a random pose, float64."""
