@@ -114,16 +114,15 @@ def limits_case(record, n_sets=1000):
                                 ("lm_free", ik.humanoid(np.float32, limits=False), "lm")):
         fn = jax.jit(lambda t, model=model, solver=solver: ik.solve(model, t, solver=solver, effectors=eff,
                                                                     max_iters=100, tol=1e-4, early_exit=True))
-        Tn = T  # every solver on the same sets
-        timing = time_call(fn, Tn, repeats=2)
-        res = fn(Tn)
+        timing = time_call(fn, T, repeats=2)  # every solver on the same sets
+        res = fn(T)
         conv = np.asarray(res.converged)
         extra = {"mean_iterations": float(jnp.mean(res.iterations)),
                  "mean_iterations_converged": float(np.mean(np.asarray(res.iterations)[conv])) if conv.any() else None,
                  "converged_fraction": float(conv.mean()),
                  "max_limit_violation_rad": float(jnp.max(ik.limit_violation(H, res.rotations)))}
         row = record(f"humanoid limits {name} tol 1e-4 float32", "humanoid limits " + name, "tol 1e-4", timing,
-                     len(Tn), extra)
+                     len(T), extra)
         out[name] = {k: row[k] for k in ("solves_per_s", "compile_s", "mean_iterations", "mean_iterations_converged",
                                          "converged_fraction", "max_limit_violation_rad")}
     return out

@@ -107,15 +107,24 @@ def _residual(topo, offsets, L, tgt, w, orient):
     return _residual_at(topo, *_pose(topo, offsets, L), tgt, w, orient)
 
 
+def _frame_rows(topo, G, w, orient):
+    """Per effector slot ``k`` and frame axis ``u``: ``(k, u, c_k, R(G_e) u)``, with
+    ``c_k = sqrt(w_k / 2) * orientation weight`` (the orientation rows' scale)."""
+    out = []
+    for k, e in enumerate(topo.effectors):
+        c = jnp.sqrt(0.5 * w[k]) * orient.weights[k]
+        for u in _AXES:
+            u = _quat.unstack(u.astype(w[k].dtype))
+            out.append((k, u, c, _quat.rotate(G[e], u)))
+    return out
+
+
 def _residual_at(topo, P, G, tgt, w, orient):
     """``_residual`` at the pose's world positions ``P`` and frames ``G`` (lists of tuples)."""
     parts = [jnp.sqrt(w[k]) * (_quat.stack(P[e]) - _quat.stack(tgt[k])) for k, e in enumerate(topo.effectors)]
     if orient is not None:
-        for k, e in enumerate(topo.effectors):
-            c = jnp.sqrt(0.5 * w[k]) * orient.weights[k]
-            for u in _AXES:
-                u = _quat.unstack(u.astype(parts[0].dtype))
-                parts.append(c * (_quat.stack(_quat.rotate(G[e], u)) - _quat.stack(_quat.rotate(orient.rotations[k], u))))
+        parts += [c * (_quat.stack(Ru) - _quat.stack(_quat.rotate(orient.rotations[k], u)))
+                  for k, u, c, Ru in _frame_rows(topo, G, w, orient)]
     r = jnp.concatenate(parts)
     return r, functools.reduce(jnp.maximum, effector_sq_errors(topo, P, G, tgt, orient))
 
@@ -146,11 +155,7 @@ def geometric_jacobian(topo, offsets, L, tgt, w, orient, dofs, table):
 
     rows = [block(k, jnp.sqrt(w[k]), lambda i, e=e: _quat.sub(P[e], P[i])) for k, e in enumerate(topo.effectors)]
     if orient is not None:
-        for k, e in enumerate(topo.effectors):
-            c = jnp.sqrt(0.5 * w[k]) * orient.weights[k]
-            for u in _AXES:
-                Ru = _quat.rotate(G[e], _quat.unstack(u.astype(dtype)))
-                rows.append(block(k, c, lambda i, Ru=Ru: Ru))
+        rows += [block(k, c, lambda i, Ru=Ru: Ru) for k, _, c, Ru in _frame_rows(topo, G, w, orient)]
     return jnp.concatenate(rows, axis=0), r
 
 
