@@ -103,17 +103,20 @@ def humanoid_case(record, n_sets=10_000):
 def limits_case(record, n_sets=1000):
     """The humanoid with its joint limits: all three solvers to tol 1e-4 (<= 100 iterations,
     early exit) on float32 target sets made by FK of random poses projected onto the limits,
-    plus LM on the free humanoid for comparison."""
+    LM from its default start and with four starts (``seeds=4``), and LM on the free
+    humanoid for comparison."""
     rng = np.random.default_rng(2)
     out = {}
     H = ik.humanoid(np.float32)
     eff = tuple(H.index(k) for k in ik.HUMANOID_EFFECTORS)
     R = ik.project_limits(H, random_poses(rng, (n_sets, H.num_joints)))
     T = jnp.asarray(np.asarray(ik.fk(H, R).positions)[:, eff], jnp.float32)
-    for name, model, solver in (("fabrik", H, "fabrik"), ("ccd", H, "ccd"), ("lm", H, "lm"),
-                                ("lm_free", ik.humanoid(np.float32, limits=False), "lm")):
+    lm = ik.LevenbergMarquardt(100, 1e-4)
+    for name, model, solver in (("fabrik", H, ik.FABRIK(100, 1e-4)), ("ccd", H, ik.CCD(100, 1e-4)), ("lm", H, lm),
+                                ("lm_seeds4", H, ik.LevenbergMarquardt(100, 1e-4, seeds=4)),
+                                ("lm_free", ik.humanoid(np.float32, limits=False), lm)):
         fn = jax.jit(lambda t, model=model, solver=solver: ik.solve(model, t, solver=solver, effectors=eff,
-                                                                    max_iters=100, tol=1e-4, early_exit=True))
+                                                                    early_exit=True))
         timing = time_call(fn, T, repeats=2)  # every solver on the same sets
         res = fn(T)
         conv = np.asarray(res.converged)

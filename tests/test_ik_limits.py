@@ -234,15 +234,52 @@ def test_lm_on_a_chain_jit_vmap_and_honest_counts():
     np.testing.assert_array_equal(ee.iterations, eager.iterations)
 
 
+def test_lm_default_start_and_seeds():
+    """LM's default start (hinges mid-range), and ``seeds=K``: per set the first start that
+    converged (else the closest), every seed's iterations counted; bad seeds raise."""
+    from jaxsim.ik._starts import default_start, extra_starts
+
+    sk = ik.Chain(np.array([[0, 0, 0], [0.5, 0, 0], [0.4, 0, 0], [0.3, 0, 0.0]]),
+                  limits=(ik.SwingTwist(1.2), ik.Hinge((0, 0, 1), 0.0, 2.5), ik.Hinge((0, 1, 0), -1.0, 1.0), None))
+    q0 = np.asarray(default_start(sk))
+    np.testing.assert_allclose(q0[1], [np.cos(0.625), 0, 0, np.sin(0.625)], atol=1e-15)  # mid-range: 1.25 rad
+    np.testing.assert_allclose(q0[[0, 2, 3]], np.tile([1.0, 0, 0, 0], (3, 1)))  # symmetric range: 0
+    rng = np.random.default_rng(3)
+    t = np.asarray(ik.fk(sk, ik.project_limits(sk, random_rotations(rng, (8, 4), 2.0))).positions)[:, -1:]
+    settings = ik.LevenbergMarquardt(4, 1e-6)
+    one = ik.solve(sk, t, solver=settings)
+    np.testing.assert_array_equal(one.rotations, ik.solve(sk, t, solver=settings, rotations=q0).rotations)
+    K = 3
+    starts = np.concatenate([q0[None], np.asarray(extra_starts(sk, K))])
+    assert np.all(np.asarray(ik.limit_violation(sk, starts)) <= 1e-12)
+    runs = [ik.solve(sk, t, solver=settings, rotations=starts[k]) for k in range(K)]
+    many = ik.solve(sk, t, solver=ik.LevenbergMarquardt(4, 1e-6, seeds=K))
+    conv = np.stack([np.asarray(r.converged) for r in runs], axis=1)
+    worst = np.stack([np.asarray(r.error).max(-1) for r in runs], axis=1)
+    pick = np.where(conv.any(1), np.argmax(conv, axis=1), np.argmin(worst, axis=1))
+    assert len(set(pick)) > 1  # the case tests the choice
+    for b in range(len(t)):
+        np.testing.assert_allclose(many.rotations[b], runs[pick[b]].rotations[b], atol=1e-12)
+    np.testing.assert_array_equal(many.converged, conv.any(1))
+    np.testing.assert_array_equal(many.iterations, sum(np.asarray(r.iterations) for r in runs))
+    for bad in (0, -1, 1.5):
+        with pytest.raises(ValueError, match="seeds"):
+            ik.LevenbergMarquardt(seeds=bad)
+    # the default solver: LM for a limited skeleton, FABRIK for a free one
+    np.testing.assert_array_equal(ik.solve(sk, t, max_iters=4).rotations,
+                                  ik.solve(sk, t, solver="lm", max_iters=4).rotations)
+    free = sk.with_limits(None)
+    np.testing.assert_array_equal(ik.solve(free, t, max_iters=4).rotations,
+                                  ik.solve(free, t, solver="fabrik", max_iters=4).rotations)
+
+
 @pytest.mark.parametrize("limits, orient", [pytest.param(True, False, marks=pytest.mark.slow), (True, True),
                                             pytest.param(False, True, marks=pytest.mark.slow)])
 def test_geometric_jacobian_equals_jacfwd(limits, orient):
     """LM's Jacobian from one FK pass (hinges one column, fixed joints none) against
     ``jax.jacfwd`` of its residual, at a random pose, float64."""
-    from jaxsim._geometry import quat as Q
     from jaxsim.ik import _lm
     from jaxsim.ik._limits import limit_table
-    from jaxsim.ik._pose import OrientTargets
     from jaxsim.ik._skeleton import topology
 
     rng = np.random.default_rng(11)
@@ -250,24 +287,57 @@ def test_geometric_jacobian_equals_jacfwd(limits, orient):
     eff = tuple(H.index(n) for n in ik.HUMANOID_EFFECTORS)
     table, topo = limit_table(H), topology(H.parents, eff)
     L = jnp.asarray(random_rotations(rng, (H.num_joints,), np.pi))
-    tgt = [Q.unstack(jnp.asarray(rng.normal(size=3))) for _ in eff]
-    w = [jnp.asarray(1.0 + k) for k in range(len(eff))]
-    ori = None
+    prob = _lm.LMProblem(jnp.asarray(rng.normal(size=(len(eff), 3))), 1.0 + jnp.arange(len(eff), dtype=jnp.float64))
     if orient:
-        qs = random_rotations(rng, (len(eff),), np.pi)
-        ori = OrientTargets([Q.unstack(jnp.asarray(q)) for q in qs], [jnp.asarray(0.7) for _ in eff])
-    dofs = _lm._dofs(topo, table, ori is not None)
-    n = sum(1 if h else 3 for _, h in dofs)
-    assert any(h for _, h in dofs) == limits  # a hinge takes one column
+        prob = _lm.LMProblem(prob.targets, prob.weights, jnp.asarray(random_rotations(rng, (len(eff),), np.pi)),
+                             jnp.full((len(eff),), 0.7))
+    dofs = _lm._dofs(topo, table, orient)
+    assert any(dofs.hinge) == limits  # a hinge takes one column
 
     def residual(d):
-        return _lm._residual(topo, H.offsets, _lm._perturb(L, d, dofs, table), tgt, w, ori)[0]
+        return _lm._residual(topo, H.offsets, _lm._perturb(L, d, dofs, table), prob)[0]
 
-    expected = jax.jacfwd(residual)(jnp.zeros(n))
-    got, r = _lm.geometric_jacobian(topo, H.offsets, L, tgt, w, ori, dofs, table)
-    assert got.shape == expected.shape == (len(eff) * (12 if orient else 3), n)
+    expected = jax.jacfwd(residual)(jnp.zeros(dofs.n))
+    got, r = _lm.geometric_jacobian(topo, H.offsets, L, prob, dofs, table)
+    assert got.shape == expected.shape == (len(eff) * (12 if orient else 3), dofs.n)
     np.testing.assert_allclose(got, expected, atol=1e-10, rtol=0)
-    np.testing.assert_allclose(r, residual(jnp.zeros(n)), atol=0, rtol=0)
+    np.testing.assert_allclose(r, residual(jnp.zeros(dofs.n)), atol=0, rtol=0)
+
+
+def test_stacked_pose_equals_the_per_joint_forms():
+    """``_stacked``'s level-by-level FK, vectorised limit projection and effector errors
+    against ``fk_tree``, ``project_all`` and ``effector_sq_errors``, float64, batched."""
+    from jaxsim._geometry import quat as Q
+    from jaxsim.ik import _stacked
+    from jaxsim.ik._fk import fk_tree
+    from jaxsim.ik._limits import limit_table
+    from jaxsim.ik._projection import project_all
+    from jaxsim.ik._pose import OrientTargets, effector_sq_errors
+    from jaxsim.ik._skeleton import topology
+
+    rng = np.random.default_rng(5)
+    H = ik.humanoid(np.float64)
+    J, eff = H.num_joints, tuple(H.index(n) for n in ik.HUMANOID_EFFECTORS)
+    L = jnp.asarray(random_rotations(rng, (2, J), np.pi))
+    table = limit_table(H)
+    assert set(table.kinds) == {"free", "hinge", "swing", "fixed"}  # every kind is projected
+    per_joint = [Q.unstack(L[..., i, :], axis=-1) for i in range(J)]
+    want = jnp.stack([Q.stack(q, axis=-1) for q in project_all(table, per_joint)], axis=-2)
+    np.testing.assert_allclose(_stacked.project_stacked(table, L), want, atol=1e-14, rtol=0)
+    P, G = _stacked.fk_stacked(H.parents, H.offsets, L)
+    P0, G0 = fk_tree(H.parents, H.offsets, per_joint)
+    np.testing.assert_allclose(P, jnp.stack([jnp.broadcast_to(Q.stack(p, axis=-1), (2, 3)) for p in P0], axis=-2),
+                               atol=1e-14, rtol=0)
+    np.testing.assert_allclose(G, jnp.stack([Q.stack(g, axis=-1) for g in G0], axis=-2), atol=1e-14, rtol=0)
+    tgt, ori = jnp.asarray(rng.normal(size=(2, len(eff), 3))), jnp.asarray(random_rotations(rng, (2, len(eff)), 1.0))
+    ow = jnp.asarray([0.3, 0.5, 0.7, 1.1])
+    topo = topology(H.parents, eff)
+    orient = OrientTargets([Q.unstack(ori[:, k], axis=-1) for k in range(len(eff))], [ow[k] for k in range(len(eff))])
+    want = effector_sq_errors(topo, [Q.unstack(P[..., i, :], axis=-1) for i in range(J)],
+                              [Q.unstack(G[..., i, :], axis=-1) for i in range(J)],
+                              [Q.unstack(tgt[:, k], axis=-1) for k in range(len(eff))], orient)
+    np.testing.assert_allclose(_stacked.sq_errors(P, G, eff, tgt, ori, ow), jnp.stack(want, axis=-1), atol=1e-14,
+                               rtol=0)
 
 
 @pytest.mark.slow

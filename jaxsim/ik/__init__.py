@@ -2,7 +2,8 @@
 
 from ._api import ccd, fabrik, solve
 from ._fk import Pose, fk
-from ._limits import Fixed, Free, Hinge, SwingTwist, limit_violation, project_limits
+from ._limits import Fixed, Free, Hinge, SwingTwist
+from ._projection import limit_violation, project_limits
 from ._result import IKResult
 from ._rigs import HUMANOID_EFFECTORS, Chain, humanoid, lab_arm, straight_chain
 from ._settings import CCD, FABRIK, LevenbergMarquardt

@@ -7,7 +7,7 @@ from ._settings import CCD, FABRIK, DEFAULT_MAX_ITERS, DEFAULT_TOL, resolve_sett
 from ._solve import solve_ik
 
 
-def solve(model, targets, *, solver="fabrik", rotations=None, effectors=None, weights=None,
+def solve(model, targets, *, solver=None, rotations=None, effectors=None, weights=None,
           max_iters: int | None = None, tol=None, trace: bool = False, unroll: bool | None = None,
           early_exit: bool = False, implicit_diff: bool = False, sharded: bool | None = None, orientations=None,
           orientation_weights=None) -> IKResult:
@@ -19,11 +19,15 @@ def solve(model, targets, *, solver="fabrik", rotations=None, effectors=None, we
       targets: ``(..., E, 3)`` world targets, one per effector; with one effector a
         single ``(3,)`` target is read as ``(1, 3)``.
       solver: a settings object, ``jaxsim.ik.FABRIK(max_iters=, tol=)``,
-        ``jaxsim.ik.CCD(...)`` or ``jaxsim.ik.LevenbergMarquardt(..., damping=)``, or the
-        shorthand ``"fabrik"`` / ``"ccd"`` / ``"lm"`` with ``max_iters`` (default 100) and
-        ``tol`` (default 1e-4, scene units: converged when every effector is within it).
+        ``jaxsim.ik.CCD(...)`` or ``jaxsim.ik.LevenbergMarquardt(..., damping=, seeds=)``, or
+        the shorthand ``"fabrik"`` / ``"ccd"`` / ``"lm"`` with ``max_iters`` (default 100)
+        and ``tol`` (default 1e-4, scene units: converged when every effector is within
+        it).  ``None`` (the default): ``"lm"`` for a skeleton with limits or with
+        orientation targets, where the sweep solvers fall short (docs/ik.md), else
+        ``"fabrik"``.
       rotations: ``(J, 4)`` (one start pose for the batch) or ``(..., J, 4)`` local
-        start rotations; ``None`` = rest pose.
+        start rotations; ``None`` = rest pose (for LM, the rest pose with every hinge
+        at the middle of its range: at rest a hinge is often on a bound and straight).
       effectors: joint ids or names (default: the leaves; a chain's last joint).
       weights: ``(E,)`` positive effector weights (default ones).
       trace: also return ``trace (..., max_iters)``, the worst effector's error after
@@ -51,6 +55,8 @@ def solve(model, targets, *, solver="fabrik", rotations=None, effectors=None, we
       ``jax.jvp`` differentiate through every sweep (with respect to the targets, the
       offsets and the start rotations).
     """
+    if solver is None:
+        solver = "lm" if getattr(model, "limits", None) is not None or orientations is not None else "fabrik"
     return solve_ik(resolve_settings(solver, max_iters, tol), model, targets, rotations=rotations,
                     effectors=effectors, weights=weights, orientations=orientations,
                     orientation_weights=orientation_weights, trace=trace, unroll=unroll, early_exit=early_exit,

@@ -23,7 +23,7 @@ from .._geometry import quat as _quat
 from . import _joints
 from ._fk import fk_joints
 from .._geometry.horn import best_rotation
-from ._limits import about, best_angle, clamp_range, hinge_angle
+from ._projection import about, best_angle, clamp_range, hinge_angle
 from ._loop import SweepPlan
 from ._pose import batched, effector_sq_errors, limited, local_of, moving_joints
 

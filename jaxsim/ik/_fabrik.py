@@ -26,7 +26,7 @@ from .._dtype import tiny
 from .._geometry import quat as _quat
 from . import _joints
 from .._geometry.horn import best_rotation
-from ._limits import about, best_angle
+from ._projection import about, best_angle
 from ._loop import SweepPlan
 from ._pose import batched, effector_sq_errors, limited, local_of
 

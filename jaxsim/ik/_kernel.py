@@ -22,7 +22,8 @@ from .._fusion import materialized_rows
 from .._geometry import quat as _quat
 from . import _ccd, _fabrik, _joints
 from ._fk import fk_joints, fk_tree
-from ._limits import LimitTable, project_all
+from ._limits import LimitTable
+from ._projection import project_all
 from ._loop import run_plan
 from ._pose import OrientTargets, batched, bone_lengths, effector_sq_errors, finish, reachable_flags
 from ._result import IKResult

@@ -20,27 +20,34 @@ limits; it is accepted if it lowers the cost (then ``lambda /= 3``), else reject
 (``lambda *= 4``).  Rejected trials count as iterations.  Like the sweep solvers it is a
 fixed-length ``lax.scan`` of masked no-ops after convergence (or the same loop as a
 ``while_loop`` with ``early_exit``), vmapped over the batch.
+
+A pose is stacked ``(J, 4)`` arrays (``_stacked``: FK one tree level at a time, the limit
+projection and the Jacobian's columns vectorised over joints), not the sweep kernels'
+per-joint lists: the loop body is a few hundred operations instead of thousands, which
+XLA compiles several times faster (docs/notebook.md, "LM on stacked poses").
 """
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax.scipy.linalg import cho_factor, cho_solve
 
 from .._dataclass import pytree_dataclass
 from .._geometry import quat as _quat
-from ._limits import hinge_angle, project_all
+from ._projection import hinge_angle
 from ._loop import masked_sweeps
-from ._fk import fk_tree
-from ._pose import OrientTargets, effector_sq_errors, finish, moving_joints, reachable_flags
+from ._pose import moving_joints, reachable_flags
+from ._result import IKResult
+from ._stacked import angle_errors, apply_bounds, bounds, fk_stacked, frame_axes, project_stacked, sq_errors, take
 
 #: Bounds on the relative damping ``lambda``; the lower one is ``LAMBDA_MIN_EPS`` machine epsilons.
 LAMBDA_MIN_EPS = 1e3
 LAMBDA_MAX = 1e10
-_AXES = jnp.eye(3)
 
 
 @pytree_dataclass
@@ -60,76 +67,105 @@ class LMState:
     sq_error: jax.Array
 
 
-def _dofs(topo, table, orient):
-    """Static ``(joint, hinge?)`` per moving joint (fixed joints never move)."""
-    out = []
+@pytree_dataclass
+class LMProblem:
+    """One LM solve's targets.
+
+    Attributes:
+      targets: ``(E, 3)`` effector targets; weights: ``(E,)``.
+      orients: ``(E, 4)`` target orientations (unit quaternions) or ``None``.
+      orient_weights: ``(E,)`` scene units per radian, or ``None`` without orientations.
+    """
+
+    targets: jax.Array
+    weights: jax.Array
+    orients: jax.Array | None = None
+    orient_weights: jax.Array | None = None
+
+
+@dataclasses.dataclass(frozen=True)
+class Dofs:
+    """LM's parameters (static): a ball joint has three columns, a hinge one.
+
+    Attributes:
+      joints: ``(M,)`` the joints with parameters (moving and not fixed), increasing.
+      hinge: ``(M,)`` whether each is a hinge.
+      cols: ``(M, 3)`` each joint's columns in the parameter vector (a hinge's one thrice).
+      col_joint: ``(n,)`` each column's joint; col_axis: ``(n,)`` its local axis (0-2;
+        0 for a hinge, whose axis is the table's).
+    """
+
+    joints: tuple
+    hinge: tuple
+    cols: tuple
+    col_joint: tuple
+    col_axis: tuple
+
+    @property
+    def n(self) -> int:
+        return len(self.col_joint)
+
+    @property
+    def hinge_cols(self) -> tuple:
+        """``(joint, column)`` of every hinge."""
+        return tuple((j, c[0]) for j, h, c in zip(self.joints, self.hinge, self.cols) if h)
+
+
+def _dofs(topo, table, orient: bool) -> Dofs:
+    """The parameters of the joints a solve may turn (fixed joints never move)."""
+    joints, hinge, cols, cj, ca = [], [], [], [], []
     for i in moving_joints(topo, orient):
         kind = "free" if table is None else table.kinds[i]
-        if kind != "fixed":
-            out.append((i, kind == "hinge"))
-    return tuple(out)
+        if kind == "fixed":
+            continue
+        o, h = len(cj), kind == "hinge"
+        joints.append(i)
+        hinge.append(h)
+        cols.append((o, o, o) if h else (o, o + 1, o + 2))
+        cj.extend([i] if h else [i, i, i])
+        ca.extend([0] if h else [0, 1, 2])
+    return Dofs(tuple(joints), tuple(hinge), tuple(cols), tuple(cj), tuple(ca))
 
 
-def dofs_index(dofs):
-    """Per moving joint, ``(offset into the parameter vector, hinge?)``."""
-    out, o = [], 0
-    for _, hinge in dofs:
-        out.append((o, hinge))
-        o += 1 if hinge else 3
-    return out
-
-
-def _perturb(L, d, dofs, table):
-    """Rotations ``L (J, 4)`` turned on the right by the parameter vector ``d (n,)``."""
-    o, rows = 0, []
-    for i, hinge in dofs:
-        if hinge:
-            v, o = d[o] * table.axis[i], o + 1
-        else:
-            v, o = d[o:o + 3], o + 3
-        rows.append(jnp.concatenate([jnp.ones((1,), d.dtype), 0.5 * v]))
-    if not rows:
+def _perturb(L, d, dofs: Dofs, table):
+    """Rotations ``L (J, 4)`` turned on the right by the parameter vector ``d (n,)``:
+    ``L_i <- L_i (1, v_i / 2) / |.|``, ``v_i = d[cols_i]`` (a hinge: ``d_o`` times its axis)."""
+    if not dofs.joints:
         return L
-    ids = jnp.array([i for i, _ in dofs])
-    dq = jnp.stack(rows)
+    v = d[np.asarray(dofs.cols)]
+    if any(dofs.hinge):
+        v = jnp.where(np.asarray(dofs.hinge)[:, None], v * take(table.axis, dofs.joints, axis=0), v)
+    dq = jnp.concatenate([jnp.ones(v.shape[:-1] + (1,), d.dtype), 0.5 * v], axis=-1)
     dq = dq / jnp.sqrt(jnp.sum(dq * dq, axis=-1, keepdims=True))
+    ids = np.asarray(dofs.joints)
     new = _quat.stack(_quat.mul(_quat.unstack(L[ids], axis=-1), _quat.unstack(dq, axis=-1)), axis=-1)
     return L.at[ids].set(new)
 
 
-def _pose(topo, offsets, L):
-    J = len(topo.parents)
-    return fk_tree(topo.parents, offsets, [_quat.unstack(L[i]) for i in range(J)], topo.active)
+def _orient_scale(prob: LMProblem):
+    """``(E,)`` the orientation rows' scale ``c_k = sqrt(w_k / 2) * orientation weight``."""
+    return jnp.sqrt(0.5 * prob.weights) * prob.orient_weights
 
 
-def _residual(topo, offsets, L, tgt, w, orient):
-    """``(r, sq_errors)``: the stacked residual and the per-effector squared errors."""
-    return _residual_at(topo, *_pose(topo, offsets, L), tgt, w, orient)
+def _residual_at(topo, P, G, prob: LMProblem):
+    """``(r, worst squared error)`` at FK's ``P (J, 3)``, ``G (J, 4)``: ``r`` stacks the
+    position rows ``(E, 3)`` then the frame-axis rows ``(E, 3, 3)`` (effector, axis, component)."""
+    eff = topo.effectors
+    pe = take(P, eff, axis=0)
+    parts = [(jnp.sqrt(prob.weights)[:, None] * (pe - prob.targets)).reshape(-1)]
+    if prob.orients is not None:
+        Ru, Tu = frame_axes(take(G, eff, axis=0)), frame_axes(prob.orients)
+        parts.append((_orient_scale(prob)[:, None, None] * (Ru - Tu)).reshape(-1))
+    e2 = sq_errors(P, G, eff, prob.targets, prob.orients, prob.orient_weights)
+    return jnp.concatenate(parts), jnp.max(e2)
 
 
-def _frame_rows(topo, G, w, orient):
-    """Per effector slot ``k`` and frame axis ``u``: ``(k, u, c_k, R(G_e) u)``, with
-    ``c_k = sqrt(w_k / 2) * orientation weight`` (the orientation rows' scale)."""
-    out = []
-    for k, e in enumerate(topo.effectors):
-        c = jnp.sqrt(0.5 * w[k]) * orient.weights[k]
-        for u in _AXES:
-            u = _quat.unstack(u.astype(w[k].dtype))
-            out.append((k, u, c, _quat.rotate(G[e], u)))
-    return out
+def _residual(topo, offsets, L, prob: LMProblem):
+    """``(r, worst squared error)`` of the local rotations ``L (J, 4)``."""
+    return _residual_at(topo, *fk_stacked(topo.parents, offsets, L), prob)
 
 
-def _residual_at(topo, P, G, tgt, w, orient):
-    """``_residual`` at the pose's world positions ``P`` and frames ``G`` (lists of tuples)."""
-    parts = [jnp.sqrt(w[k]) * (_quat.stack(P[e]) - _quat.stack(tgt[k])) for k, e in enumerate(topo.effectors)]
-    if orient is not None:
-        parts += [c * (_quat.stack(Ru) - _quat.stack(_quat.rotate(orient.rotations[k], u)))
-                  for k, u, c, Ru in _frame_rows(topo, G, w, orient)]
-    r = jnp.concatenate(parts)
-    return r, functools.reduce(jnp.maximum, effector_sq_errors(topo, P, G, tgt, orient))
-
-
-def geometric_jacobian(topo, offsets, L, tgt, w, orient, dofs, table):
+def geometric_jacobian(topo, offsets, L, prob: LMProblem, dofs: Dofs, table):
     """``(J, r)``: the residual's Jacobian ``(m, n)`` from one FK pass, and the residual ``(m,)``.
 
     Turning joint ``i`` on the right by ``d`` turns everything below it about the world axis
@@ -137,26 +173,72 @@ def geometric_jacobian(topo, offsets, L, tgt, w, orient, dofs, table):
     ``e`` are ``omega_u x (p_e - p_i)`` per parameter axis ``u`` and its orientation rows
     ``omega_u x (R_e v)`` per frame axis ``v``; both are zero unless ``i`` is ``e`` or one of
     its ancestors (the geometric Jacobian, Orin and Schrader 1984; Buss 2004 §2).  A hinge has
-    one axis, its own.  Equal to ``jax.jacfwd`` of the residual at ``d = 0`` (tested).
+    one axis, its own.  All columns at once: ``(E, 3, n)`` and ``(E, 3, 3, n)`` blocks masked by
+    the static ancestor table.  Equal to ``jax.jacfwd`` of the residual at ``d = 0`` (tested).
     """
-    P, G = _pose(topo, offsets, L)
-    dtype = offsets.dtype
-    zero = jnp.zeros((3,), dtype)
-    axes = []  # per parameter: (joint, world axis tuple)
-    for i, hinge in dofs:
-        locals_ = [_quat.unstack(table.axis[i])] if hinge else [_quat.unstack(u.astype(dtype)) for u in _AXES]
-        axes.extend((i, _quat.rotate(G[i], u)) for u in locals_)
-    r, _ = _residual_at(topo, P, G, tgt, w, orient)
-
-    def block(k, scale, lever):
-        anc = set(topo.path[k])  # the effector and its ancestors
-        cols = [scale * _quat.stack(_quat.cross(om, lever(i))) if i in anc else zero for i, om in axes]
-        return jnp.stack(cols, axis=1)
-
-    rows = [block(k, jnp.sqrt(w[k]), lambda i, e=e: _quat.sub(P[e], P[i])) for k, e in enumerate(topo.effectors)]
-    if orient is not None:
-        rows += [block(k, c, lambda i, Ru=Ru: Ru) for k, _, c, Ru in _frame_rows(topo, G, w, orient)]
+    P, G = fk_stacked(topo.parents, offsets, L)
+    r, _ = _residual_at(topo, P, G, prob)
+    cj, dtype = dofs.col_joint, offsets.dtype
+    local = jnp.asarray(np.eye(3)[np.asarray(dofs.col_axis)], dtype)
+    if any(dofs.hinge):
+        hinge_col = np.asarray([j in dict(dofs.hinge_cols) for j in cj])
+        local = jnp.where(hinge_col[:, None], take(table.axis, cj, axis=0), local)
+    om = _quat.rotate(_quat.unstack(take(G, cj, axis=0), axis=-1), _quat.unstack(local, axis=-1))  # n world axes
+    anc = np.asarray([[j in topo.path[k] for j in cj] for k in range(len(topo.effectors))], dtype)  # (E, n)
+    lever = take(P, topo.effectors, axis=0)[:, None, :] - take(P, cj, axis=0)[None]  # (E, n, 3)
+    Jp = _quat.stack(_quat.cross(om, _quat.unstack(lever, axis=-1)), axis=1)  # (E, 3, n)
+    rows = [(Jp * (jnp.sqrt(prob.weights)[:, None, None] * anc[:, None, :])).reshape(-1, dofs.n)]
+    if prob.orients is not None:
+        Ru = frame_axes(take(G, topo.effectors, axis=0))  # (E, 3, 3): axis v, component
+        Jo = _quat.stack(_quat.cross(tuple(c[None, None] for c in om), _quat.unstack(Ru[:, :, None, :], axis=-1)),
+                         axis=2)  # (E, 3, 3, n)
+        rows.append((Jo * (_orient_scale(prob)[:, None, None, None] * anc[:, None, None, :])).reshape(-1, dofs.n))
     return jnp.concatenate(rows, axis=0), r
+
+
+#: Systems up to this size are solved by :func:`spd_solve`'s unrolled Cholesky, larger ones by LAPACK.
+UNROLLED_CHOLESKY_MAX = 16
+
+
+def spd_solve(A, b):
+    """``A^-1 b`` for a symmetric positive definite ``A (k, k)``, ``b (k,)``, by Cholesky.
+
+    Up to ``UNROLLED_CHOLESKY_MAX`` the factorisation and the two triangular solves are
+    unrolled into scalar operations: vmapped, every one is an elementwise operation over
+    the batch, which XLA:CPU fuses and vectorises, where a batch of LAPACK calls pays a
+    call per element (docs/notebook.md, "LM on stacked poses").
+    """
+    k = A.shape[0]
+    if k > UNROLLED_CHOLESKY_MAX:
+        return cho_solve(cho_factor(A), b)
+    Lc = [[None] * k for _ in range(k)]
+    inv = [None] * k
+    for j in range(k):
+        d = jnp.sqrt(A[j, j] - sum(Lc[j][p] * Lc[j][p] for p in range(j)))
+        inv[j] = 1.0 / d
+        for i in range(j + 1, k):
+            Lc[i][j] = (A[i, j] - sum(Lc[i][p] * Lc[j][p] for p in range(j))) * inv[j]
+        Lc[j][j] = d
+    y = [None] * k
+    for i in range(k):
+        y[i] = (b[i] - sum(Lc[i][p] * y[p] for p in range(i))) * inv[i]
+    x = [None] * k
+    for i in reversed(range(k)):
+        x[i] = (y[i] - sum(Lc[p][i] * x[p] for p in range(i + 1, k))) * inv[i]
+    return jnp.stack(x)
+
+
+def _held_hinges(L, d, dofs: Dofs, table, dtype):
+    """``(n,)`` bool: a hinge on a bound whose step ``d`` points out of its range."""
+    held = jnp.zeros((dofs.n,), bool)
+    hc = dofs.hinge_cols
+    if not hc:
+        return held
+    js, cs = tuple(j for j, _ in hc), np.asarray([c for _, c in hc])
+    phi = hinge_angle(_quat.unstack(take(L, js, axis=0), axis=-1), _quat.unstack(take(table.axis, js, axis=0),
+                                                                                  axis=-1))
+    lo, hi, eps = take(table.lo, js, axis=0), take(table.hi, js, axis=0), 1e3 * jnp.finfo(dtype).eps
+    return held.at[cs].set(((phi <= lo + eps) & (d[cs] < 0)) | ((phi >= hi - eps) & (d[cs] > 0)))
 
 
 def lm_one(offsets, targets, local0, weights, tol, table, orients, orient_weights, damping, *, topo, max_iters,
@@ -165,48 +247,35 @@ def lm_one(offsets, targets, local0, weights, tol, table, orients, orient_weight
 
     Returns the ``IKResult`` of one target (``rotations (J, 4)``, ``error (E,)``, ...).
     """
-    J, E = len(topo.parents), len(topo.effectors)
     dtype = offsets.dtype
-    tgt = [_quat.unstack(targets[k]) for k in range(E)]
-    w = [weights[k] for k in range(E)]
-    orient = None if orients is None else OrientTargets([_quat.unstack(orients[k]) for k in range(E)],
-                                                        [orient_weights[k] for k in range(E)])
-    dofs = _dofs(topo, table, orient is not None)
-    n = sum(1 if h else 3 for _, h in dofs)
+    prob = LMProblem(targets, weights, orients, None if orients is None else orient_weights)
+    dofs = _dofs(topo, table, orients is not None)
+    n = dofs.n
     lam_min = LAMBDA_MIN_EPS * jnp.finfo(dtype).eps
-    L0 = _quat.stack([_quat.stack(q) for q in project_all(table, [_quat.unstack(local0[i]) for i in range(J)])])
-    r0, e0 = _residual(topo, offsets, L0, tgt, w, orient)
-    res = functools.partial(_residual, topo, offsets, tgt=tgt, w=w, orient=orient)
-
-    def project(L):
-        return _quat.stack([_quat.stack(q) for q in project_all(table, [_quat.unstack(L[i]) for i in range(J)])])
-
-    def jac(L):
-        return geometric_jacobian(topo, offsets, L, tgt, w, orient, dofs, table)
-
-    hinge_at = [k for k, _ in enumerate(dofs_index(dofs)) if dofs_index(dofs)[k][1]]
+    L0 = project_stacked(table, local0)
+    moved = bounds(table, dofs.joints)  # only these change in the loop (fixed joints are not among them)
+    r0, e0 = _residual(topo, offsets, L0, prob)
 
     def solve(Jac, r, damping):
-        A = Jac.T @ Jac
+        # (J^T J + mu I)^-1 J^T = J^T (J J^T + mu I)^-1: the smaller of the two systems
+        # (m rows against n parameters, static), the same step.
+        m = Jac.shape[0]
+        A = Jac @ Jac.T if m < n else Jac.T @ Jac
         mu = damping * (jnp.trace(A) / n + jnp.finfo(dtype).tiny)
-        return cho_solve(cho_factor(A + mu * jnp.eye(n, dtype=dtype)), -(Jac.T @ r))
+        A = A + mu * jnp.eye(A.shape[0], dtype=dtype)
+        if m < n:
+            return -(Jac.T @ spd_solve(A, r))
+        return spd_solve(A, -(Jac.T @ r))
 
     def sweep(s: LMState):
-        Jac, r = jac(s.rotations)
+        Jac, r = geometric_jacobian(topo, offsets, s.rotations, prob, dofs, table)
         d = solve(Jac, r, s.damping)
-        if hinge_at:  # a hinge on a bound whose step points out of range is held (one active-set pass)
-            held = jnp.zeros((n,), bool)
-            for k in hinge_at:
-                o, i = dofs_index(dofs)[k][0], dofs[k][0]
-                lim = table.joint(i)
-                ax, lo, hi = lim.axis, lim.lo, lim.hi
-                phi = hinge_angle(_quat.unstack(s.rotations[i]), ax)
-                eps = 1e3 * jnp.finfo(dtype).eps
-                held = held.at[o].set(((phi <= lo + eps) & (d[o] < 0)) | ((phi >= hi - eps) & (d[o] > 0)))
+        if dofs.hinge_cols:  # a hinge on a bound whose step points out of range is held (one active-set pass)
+            held = _held_hinges(s.rotations, d, dofs, table, dtype)
             d = jnp.where(jnp.any(held), solve(jnp.where(held, 0.0, Jac), r, s.damping), d)
         d = jnp.where(jnp.all(jnp.isfinite(d)), d, 0.0)
-        trial = project(_perturb(s.rotations, d, dofs, table))
-        rt, et = res(trial)
+        trial = apply_bounds(moved, _perturb(s.rotations, d, dofs, table))
+        rt, et = _residual(topo, offsets, trial, prob)
         ct = jnp.sum(rt * rt)
         ok = ct < s.cost
         new = LMState(rotations=jnp.where(ok, trial, s.rotations),
@@ -221,8 +290,21 @@ def lm_one(offsets, targets, local0, weights, tol, table, orients, orient_weight
     else:
         state, iters, errs = masked_sweeps(sweep, s0, _quat.safe_sqrt(e0), jnp.zeros((), jnp.int32), e0 <= tol * tol,
                                            tol, max_iters=max_iters, trace=trace, early_exit=early_exit)
-    local = [_quat.unstack(state.rotations[i]) for i in range(J)]
-    return finish(topo, offsets, local, tgt, orient, tol, iters, reachable_flags(topo, offsets, tgt, ()), errs)
+    return _result(topo, offsets, state.rotations, prob, tol, iters, errs)
+
+
+def _result(topo, offsets, L, prob: LMProblem, tol, iters, errs) -> IKResult:
+    """The ``IKResult`` of one solve's final rotations ``L (J, 4)`` (``_pose.finish``'s fields)."""
+    P, G = fk_stacked(topo.parents, offsets, L)
+    err = jnp.sqrt(jnp.sum((take(P, topo.effectors, axis=0) - prob.targets) ** 2, axis=-1))
+    ok = jnp.all(err <= tol)
+    ang = None
+    if prob.orients is not None:
+        ang = angle_errors(G, topo.effectors, prob.orients)
+        ok = ok & jnp.all(prob.orient_weights * ang <= tol)
+    tgt = [_quat.unstack(t) for t in prob.targets]
+    return IKResult(rotations=L, positions=P, error=err, iterations=iters, converged=ok,
+                    reachable=reachable_flags(topo, offsets, tgt, ()), trace=errs, angle_error=ang)
 
 
 @functools.partial(jax.jit, static_argnames=("topo", "max_iters", "trace", "early_exit"))

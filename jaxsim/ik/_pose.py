@@ -9,7 +9,7 @@ import jax.numpy as jnp
 
 from .._geometry import quat as _quat
 from ._fk import fk_tree
-from ._limits import project
+from ._projection import project
 from ._result import IKResult
 
 

@@ -54,13 +54,18 @@ class LevenbergMarquardt(_Settings):
         step counts as one.
       tol: converged when every effector is within ``tol`` of its target (scene units).
       damping: the starting relative damping ``lambda`` (> 0), adapted per iteration.
+      seeds: starts per target set (static, >= 1): the given (or default) start and
+        ``seeds - 1`` fixed poses inside the limits; the first that converges is kept
+        (else the closest), and ``iterations`` counts them all (``_starts``).
     """
 
     damping: float = 1e-2
+    seeds: int = 1
 
     def __post_init__(self):
         super().__post_init__()
         object.__setattr__(self, "damping", check_real("damping", self.damping, minimum=0.0, strict=True))
+        object.__setattr__(self, "seeds", check_int("seeds", self.seeds, 1))
 
 
 _BY_NAME = {"fabrik": FABRIK, "ccd": CCD, "lm": LevenbergMarquardt}

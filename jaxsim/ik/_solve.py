@@ -25,6 +25,7 @@ from ._inputs import Inputs, check_flags, check_inputs, check_model
 from ._kernel import bent_start, run_chain, run_tree
 from ._limits import limit_table
 from ._lm import run_lm
+from ._starts import best_of, default_start, extra_starts
 from ._result import IKResult
 from ._settings import CCD, FABRIK, LevenbergMarquardt
 from ._skeleton import topology
@@ -58,6 +59,8 @@ def solve_ik(settings, model, targets, *, rotations=None, effectors=None, weight
         raise ValueError("early_exit=True runs the sweeps in a lax.while_loop, which JAX differentiates in forward "
                          "mode only (jax.jvp, jax.jacfwd); for jax.grad use early_exit=False (the default scan), or "
                          "implicit_diff=True, which never differentiates the sweeps")
+    if rotations is None and isinstance(settings, LevenbergMarquardt):
+        rotations = default_start(model)
     inp = check_inputs(model, targets, rotations, effectors, weights, orientations, orientation_weights)
     table = limit_table(model)
     topo = topology(model.parents, inp.effectors)
@@ -107,10 +110,18 @@ def _run(settings, model, inp: Inputs, topo, table, lean, *, trace, unroll, earl
     tgt = jnp.moveaxis(targets, (-2, -1), (0, 1))
     start = bent_start(offsets, tgt, jnp.moveaxis(rotations, (-2, -1), (0, 1)), tol, topo=topo)
     if isinstance(settings, LevenbergMarquardt):  # LM too starts bent: on its target's line J^T r = 0
-        rot = jnp.moveaxis(start, (0, 1), (-2, -1)).reshape((n, J, 4))
-        res = run_lm(offsets, targets.reshape((n,) + targets.shape[-2:]), rot, inp.weights, tol, table,
-                     None if orients is None else orients.reshape((n,) + orients.shape[-2:]), inp.orientation_weights,
-                     jnp.asarray(settings.damping, dtype), topo=topo, **kw)
+        rot = jnp.moveaxis(jnp.broadcast_to(start, (J, 4) + batch), (0, 1), (-2, -1)).reshape((n, 1, J, 4))
+        K = settings.seeds
+        if K > 1:  # the extra starts, the same for every set (``_starts``)
+            rot = jnp.concatenate([rot, jnp.broadcast_to(extra_starts(model, K), (n, K - 1, J, 4))], axis=1)
+
+        def flat(a):
+            return None if a is None else jnp.repeat(a.reshape((n,) + a.shape[-2:]), K, axis=0)
+
+        res = run_lm(offsets, flat(targets), rot.reshape((n * K, J, 4)), inp.weights, tol, table, flat(orients),
+                     inp.orientation_weights, jnp.asarray(settings.damping, dtype), topo=topo, **kw)
+        if K > 1:
+            res = best_of(res, n, K)
         return jax.tree_util.tree_map(lambda x: x.reshape(batch + x.shape[1:]), res)
     res = run_tree(offsets, tgt, start, inp.weights, tol, table,
                    None if orients is None else jnp.moveaxis(orients, (-2, -1), (0, 1)), inp.orientation_weights,

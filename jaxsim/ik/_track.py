@@ -16,7 +16,8 @@ from . import _joints
 from ._fk import joint_positions
 from ._inputs import check_flags, check_inputs, check_model
 from ._kernel import bent_start, run_chain, run_tree
-from ._limits import limit_table, project_all
+from ._limits import limit_table
+from ._projection import project_all
 from ._lm import lm_one
 from ._result import IKResult
 from ._settings import LevenbergMarquardt, resolve_settings
