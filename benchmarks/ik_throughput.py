@@ -2,7 +2,7 @@
 and on the humanoid (hands and ankles as effectors, 10k target sets).
 
 Also the humanoid with its joint limits (FABRIK, CCD and LM to tol 1e-4), and a 4-hinge
-chain with joint ranges against ikpy.
+chain and a 7-hinge arm with joint ranges against ikpy.
 
 Settings: (a) exactly 10 sweeps (tol=0), (b) tol=1e-4 with max_iters=100.  Baselines in
 the same run: a numpy-vectorised FABRIK written here, ``jax.vmap`` of the one-target
@@ -11,7 +11,7 @@ solver (batch leading), the rolled joint loop, and ikpy if installed.
 Each ``solve`` row also records ``hlo_fusions``, the fusion count of its optimised HLO
 (``jax.jit(f).lower(t).compile().as_text()``).
 
-Run: ``python benchmarks/ik_throughput.py [--n 100000] [--only-limits]``; writes
+Run: ``python benchmarks/ik_throughput.py [--n 100000] [--only-limits | --only-arm7]``; writes
 ``benchmarks/results/ik_throughput.json``.
 """
 
@@ -131,55 +131,76 @@ def limits_case(record, n_sets=1000):
     return out
 
 
-def hinge_chain_case(record, n=200):
-    """A 4-hinge chain (axes z, y, z, y; ranges [-2, 2] rad; unit bones), float64 targets by FK of
-    random in-range angles: our three solvers, and ikpy on the same chain when installed."""
+#: A 7-hinge arm: alternating z and y axes, bones along x with the lengths of a 7-DoF
+#: manipulator's links (m; none zero, as a skeleton needs), a manipulator's ranges (rad).
+ARM7_AXES = [(0, 0, 1), (0, 1, 0), (0, 0, 1), (0, 1, 0), (0, 0, 1), (0, 1, 0), (0, 0, 1)]
+ARM7_LENGTHS = [0.333, 0.1, 0.316, 0.0825, 0.384, 0.088, 0.107]
+ARM7_RANGES = [(-2.8, 2.8), (-1.7, 1.7), (-2.8, 2.8), (-3.0, -0.07), (-2.8, 2.8), (-0.01, 3.1), (-2.8, 2.8)]
+
+
+def hinge_chain_case(record, n=200, axes=None, lengths=None, ranges=None, name="hinge chain", dtype=np.float64,
+                     ikpy_n=40):
+    """A hinge chain, targets by FK of random in-range angles: our three solvers, and ikpy
+    on the same chain when installed.  Default: 4 hinges (axes z, y, z, y; ranges [-2, 2]
+    rad; unit bones), float64; the 7-hinge arm: ``ARM7_*``, float32."""
+    axes = axes or [(0, 0, 1), (0, 1, 0), (0, 0, 1), (0, 1, 0)]
+    H = len(axes)
+    lengths = lengths or [1.0] * H
+    ranges = ranges or [(-2.0, 2.0)] * H
+    x64 = dtype == np.float64
     was = jax.config.jax_enable_x64
-    jax.config.update("jax_enable_x64", True)
-    axes = [(0, 0, 1), (0, 1, 0), (0, 0, 1), (0, 1, 0)]
-    offsets = np.array([[0, 0, 0]] + [[1.0, 0, 0]] * 4)
-    sk = ik.Chain(offsets, limits=tuple(ik.Hinge(a, -2.0, 2.0) for a in axes) + (None,))
-    ang = np.random.default_rng(3).uniform(-2, 2, size=(n, 4))
-    q = np.zeros((n, 5, 4))
+    jax.config.update("jax_enable_x64", x64)
+    offsets = np.array([[0, 0, 0]] + [[length, 0, 0] for length in lengths])  # bones along x
+    sk = ik.Chain(offsets.astype(dtype), limits=tuple(ik.Hinge(a, lo, hi) for a, (lo, hi) in zip(axes, ranges)) + (None,))
+    rng = np.random.default_rng(3)
+    ang = np.stack([rng.uniform(lo, hi, size=n) for lo, hi in ranges], axis=1)
+    q = np.zeros((n, H + 1, 4))
     q[..., 0] = 1.0
     for j, a in enumerate(axes):
         q[:, j, 0] = np.cos(ang[:, j] / 2)
         q[:, j, 1:] = np.sin(ang[:, j] / 2)[:, None] * np.asarray(a)
-    T = np.asarray(ik.fk(sk, q).positions)[:, -1]
+    T = np.asarray(ik.fk(sk, q.astype(dtype)).positions)[:, -1]
     out = {}
+    prec = "float64" if x64 else "float32"
     for solver in ("fabrik", "ccd", "lm"):
-        fn = jax.jit(lambda t, solver=solver: ik.solve(sk, t[:, None], solver=solver, effectors=(4,), max_iters=100,
+        fn = jax.jit(lambda t, solver=solver: ik.solve(sk, t[:, None], solver=solver, effectors=(H,), max_iters=100,
                                                        tol=1e-4, early_exit=True))
         timing = time_call(fn, T, repeats=2)
         res = fn(T)
-        row = record(f"hinge chain {solver} tol 1e-4 float64", "hinge chain " + solver, "tol 1e-4", timing, n,
+        row = record(f"{name} {solver} tol 1e-4 {prec}", f"{name} {solver}", "tol 1e-4", timing, n,
                      {"converged_fraction": float(jnp.mean(res.converged)),
                       "mean_iterations": float(jnp.mean(res.iterations))})
-        out[solver] = {k: row[k] for k in ("solves_per_s", "converged_fraction", "mean_iterations")}
+        out[solver] = {k: row[k] for k in ("solves_per_s", "compile_s", "converged_fraction", "mean_iterations")}
     try:
         from ikpy.chain import Chain as IkpyChain
         from ikpy.link import OriginLink, URDFLink
 
-        links = [OriginLink()] + [URDFLink(name=f"j{i}", origin_translation=[0, 0, 0] if i == 0 else [1, 0, 0],
-                                           origin_orientation=[0, 0, 0], rotation=a, bounds=(-2.0, 2.0))
+        links = [OriginLink()] + [URDFLink(name=f"j{i}", origin_translation=list(offsets[i]),
+                                           origin_orientation=[0, 0, 0], rotation=a, bounds=ranges[i])
                                   for i, a in enumerate(axes)]
-        links.append(URDFLink(name="end", origin_translation=[1, 0, 0], origin_orientation=[0, 0, 0],
+        links.append(URDFLink(name="end", origin_translation=list(offsets[H]), origin_orientation=[0, 0, 0],
                               joint_type="fixed"))
-        kc = IkpyChain(links, active_links_mask=[False] + [True] * 4 + [False])
-        k = 40
-        kc.inverse_kinematics(T[0])  # warm-up
+        kc = IkpyChain(links, active_links_mask=[False] + [True] * H + [False])
+        T64 = np.asarray(T, np.float64)
+        kc.inverse_kinematics(T64[0])  # warm-up
         t0 = time.perf_counter()
-        sols = [kc.inverse_kinematics(t) for t in T[:k]]
+        sols = [kc.inverse_kinematics(t) for t in T64[:ikpy_n]]
         secs = time.perf_counter() - t0
-        err = np.array([np.linalg.norm(kc.forward_kinematics(s)[:3, 3] - t) for s, t in zip(sols, T[:k])])
+        err = np.array([np.linalg.norm(kc.forward_kinematics(s)[:3, 3] - t) for s, t in zip(sols, T64[:ikpy_n])])
         rows_extra = {"converged_fraction": float(np.mean(err <= 1e-4))}
-        record("hinge chain ikpy (scipy) float64", "hinge chain ikpy", "default", {"run_s": secs, "compile_s": 0.0},
-               k, rows_extra)
-        out["ikpy"] = {"solves_per_s": k / secs, **rows_extra}
+        record(f"{name} ikpy (scipy) float64", f"{name} ikpy", "default", {"run_s": secs, "compile_s": 0.0},
+               ikpy_n, rows_extra)
+        out["ikpy"] = {"solves_per_s": ikpy_n / secs, **rows_extra}
     except ImportError:
         print("ikpy not installed: pip install -e '.[bench]' to compare", flush=True)
     jax.config.update("jax_enable_x64", was)
     return out
+
+
+def arm7_case(record):
+    """The 7-hinge arm (``ARM7_*``), 1000 float32 position targets."""
+    return hinge_chain_case(record, n=1000, axes=ARM7_AXES, lengths=ARM7_LENGTHS, ranges=ARM7_RANGES,
+                            name="7-hinge arm", dtype=np.float32)
 
 
 def recorder(rows):
@@ -195,9 +216,10 @@ def recorder(rows):
     return record
 
 
-def only_limits():
-    """Re-run the humanoid-with-limits and hinge-chain cases; replace their rows and summary
-    entries in ``results/ik_throughput.json``, keeping the rest of the file."""
+def only_limits(arm7_only=False):
+    """Re-run the humanoid-with-limits, hinge-chain and 7-hinge arm cases (or the arm alone);
+    replace their rows and summary entries in ``results/ik_throughput.json``, keeping the
+    rest of the file."""
     import json
     import os
 
@@ -206,11 +228,12 @@ def only_limits():
         old = json.load(f)
     rows = []
     record = recorder(rows)
-    limits, hinge = limits_case(record), hinge_chain_case(record)
+    summary = {} if arm7_only else {"humanoid_limits": limits_case(record), "hinge_chain": hinge_chain_case(record)}
+    summary["arm7"] = arm7_case(record)
     labels = {r["label"] for r in rows}
     payload = {k: v for k, v in old.items() if k not in ("benchmark", "machine", "timestamp")}
     payload["rows"] = [r for r in old["rows"] if r["label"] not in labels] + rows
-    payload["summary"] = {**old["summary"], "humanoid_limits": limits, "hinge_chain": hinge}
+    payload["summary"] = {**old["summary"], **summary}
     write("ik_throughput", payload)
 
 
@@ -220,9 +243,10 @@ def main():
     ap.add_argument("--humanoid-sets", type=int, default=10_000)
     ap.add_argument("--only-limits", action="store_true",
                     help="run only the joint-limit cases and update them in the existing JSON")
+    ap.add_argument("--only-arm7", action="store_true", help="run only the 7-hinge arm and update it in the JSON")
     args = ap.parse_args()
-    if args.only_limits:
-        return only_limits()
+    if args.only_limits or args.only_arm7:
+        return only_limits(arm7_only=args.only_arm7)
     n = args.n
     chain = ik.Chain(np.asarray(ik.straight_chain(np.ones(5), direction=(0, 1, 0)).offsets, np.float32))
     rng = np.random.default_rng(0)
@@ -251,6 +275,7 @@ def main():
     humanoid = humanoid_case(record, args.humanoid_sets)
     limits = limits_case(record)
     hinge_chain = hinge_chain_case(record)
+    arm7 = arm7_case(record)
 
     # numpy baseline, 10 sweeps; timed on a slice and scaled (it is linear in n)
     m = min(n, 20_000)
@@ -301,6 +326,7 @@ def main():
         "humanoid": humanoid,
         "humanoid_limits": limits,
         "hinge_chain": hinge_chain,
+        "arm7": arm7,
     }
     print(summary)
     write("ik_throughput", {"n_targets": n, "chain": "6 joints, unit bones", "dtype": "float32", "rows": rows, "summary": summary})
