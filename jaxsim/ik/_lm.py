@@ -11,7 +11,8 @@ minimises joint by joint.
 
 Each iteration takes the geometric Jacobian ``J`` of the residual from one FK pass
 (``geometric_jacobian``; equal to ``jax.jacfwd`` of the residual, and far cheaper on
-XLA:CPU, docs/ik.md) and solves ``(J^T J + mu I) d = -J^T r`` by Cholesky, ``mu = lambda trace(J^T J) / n``.
+XLA:CPU, docs/ik.md) and solves ``(J^T J + mu I) d = -J^T r`` by Cholesky, ``mu = lambda trace(J^T J) / n``,
+or with fewer residuals than parameters the same step as ``d = -J^T y``, ``(J J^T + mu I) y = r``.
 IK is redundant, so ``J^T J`` is always singular: the damping makes the system
 positive definite (``lambda >= LAMBDA_MIN``, so its condition number stays below
 ``n / LAMBDA_MIN``), and the step is the damped least-change one (Levenberg 1944;
