@@ -36,12 +36,13 @@ def limits_section(doc: Doc) -> None:
     doc.md("## IK 6. CCD, FABRIK and LM with joint limits",
            f"`ik.humanoid()` with its documented limits (elbows and knees hinges of 0–150°, swing-twist cones "
            f"elsewhere, hands and toes fixed), hands and ankles as effectors; {n} target sets made by FK of random "
-           "poses projected onto the limits (so every set is reachable within them), solved from the rest pose in "
-           f"float64, tol {tol:g}, at most {M} sweeps or LM iterations.  CCD turns each hinge by its best angle "
-           "about the axis and projects other joints' rotations onto their limits; FABRIK projects each joint's "
-           "rotation in its forward pass and turns a hinge's parent so the hinge plane holds the bend; LM "
-           "(damped least squares on `jax.jacfwd` of the tree FK) projects each trial pose, holding a hinge on a "
-           "bound whose step points out of range.")
+           "poses projected onto the limits (so every set is reachable within them), solved from each solver's "
+           f"default start (the rest pose; for LM with every hinge at mid-range) in float64, tol {tol:g}, at most {M} "
+           "sweeps or LM iterations.  CCD turns each hinge by its best angle about the axis and projects other "
+           "joints' rotations onto their limits; FABRIK projects each joint's rotation in its forward pass and turns "
+           "a hinge's parent so the hinge plane holds the bend; LM (damped least squares with the geometric "
+           "Jacobian from one FK pass) projects each trial pose, holding a hinge on a bound whose step points out of "
+           "range.")
     doc.figure(fig, "ik_limits.png", "Humanoid with joint limits: worst effector error against iterations and time")
     doc.table("ik_limits", rows, {"solver": "solver", "conv": f"converged in {M} %", "iters": "mean iterations "
                                   "(converged)", "median": "median worst error (m)", "us": "µs per iteration per set",
