@@ -18,10 +18,10 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
+from .._fusion import materialized_rows
 from .._geometry import quat as _quat
 from . import _ccd, _fabrik, _joints
 from ._fk import fk_joints, fk_tree
-from ._stacked import fk_stacked
 from ._limits import LimitTable
 from ._projection import project_all
 from ._loop import run_plan
@@ -138,10 +138,7 @@ def bent_start(offsets, targets, local0, tol, *, topo):
     program it doubles their compile time."""
     J, B = len(topo.parents), targets.shape[2:]
     L0 = [_quat.renormalize(_quat.unstack(local0[i])) for i in range(J)]
-    # the start's FK on stacked arrays (``_stacked``): one product per tree level, read per joint
-    P, G = fk_stacked(topo.parents, offsets, jnp.moveaxis(_quat.stack([_quat.stack(q) for q in L0]), (0, 1), (-2, -1)))
-    P0 = [tuple(P[..., i, c] for c in range(3)) for i in range(J)]
-    G0 = [tuple(G[..., i, c] for c in range(4)) for i in range(J)]
+    P0, G0 = (materialized_rows(x) for x in fk_tree(topo.parents, offsets, L0))
     L0 = break_symmetry_tree(topo, offsets, L0, P0, G0, [_quat.unstack(targets[k]) for k in range(targets.shape[0])],
                              tol)
     return _quat.stack([_quat.stack(batched(q, B)) for q in L0])
