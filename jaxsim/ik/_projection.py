@@ -56,7 +56,7 @@ def about(theta, a):
     return (jnp.cos(half), *_quat.scale(jnp.sin(half), a))
 
 
-def _safe_atan2(y, x):
+def safe_atan2(y, x):
     """``atan2(y, x)``, 0 (with zero gradient) where both vanish."""
     ok = ~(y * y + x * x <= jnp.finfo(jnp.result_type(x)).tiny)
     return jnp.where(ok, jnp.arctan2(jnp.where(ok, y, 0.0), jnp.where(ok, x, 1.0)), 0.0)
@@ -72,7 +72,7 @@ def best_angle(n, a, b, w):
     ``argmax_t sum_k w_k b_k . R_n(t) a_k`` in closed form (0 when every pair is degenerate)."""
     s = sum(wk * _quat.dot(n, _quat.cross(ak, bk)) for ak, bk, wk in zip(a, b, w))
     c = sum(wk * (_quat.dot(ak, bk) - _quat.dot(n, ak) * _quat.dot(n, bk)) for ak, bk, wk in zip(a, b, w))
-    return _safe_atan2(s, c)
+    return safe_atan2(s, c)
 
 
 def twist_end(x, a):

@@ -18,6 +18,7 @@ import numpy as np
 from .._dataclass import is_concrete, pytree_dataclass
 from .._geometry import quat as _quat
 from .._validate import check_finite
+from ._projection import safe_atan2
 
 
 @pytree_dataclass
@@ -36,11 +37,6 @@ class TwoBone:
     end: jax.Array
     bend: jax.Array
     reached: jax.Array
-
-
-def _safe_atan2(y, x):
-    ok = ~(y * y + x * x <= jnp.finfo(jnp.result_type(x)).tiny)
-    return jnp.where(ok, jnp.arctan2(jnp.where(ok, y, 0.0), jnp.where(ok, x, 1.0)), 0.0)
 
 
 def _check(root, target, pole, lengths, bend):
@@ -98,8 +94,8 @@ def two_bone(root, target, pole, lengths, bend=(0.0, math.pi)) -> TwoBone:
     d = jnp.clip(dist, span[0], span[1])
     # the bend from the law of cosines, by atan2 of (sin, cos) of it: NaN-free where straight
     c = jnp.clip((d * d - l1 * l1 - l2 * l2) / (2 * l1 * l2), -1.0, 1.0)
-    theta = jnp.clip(_safe_atan2(_quat.safe_sqrt(jnp.maximum(1.0 - c * c, 0.0)), c), lo, hi)
-    alpha = _safe_atan2(l2 * jnp.sin(theta), l1 + l2 * jnp.cos(theta))  # root -> mid against root -> end
+    theta = jnp.clip(safe_atan2(_quat.safe_sqrt(jnp.maximum(1.0 - c * c, 0.0)), c), lo, hi)
+    alpha = safe_atan2(l2 * jnp.sin(theta), l1 + l2 * jnp.cos(theta))  # root -> mid against root -> end
     across = _quat.sub(side, _quat.scale(_quat.dot(side, u), u))
     n = _quat.normalize(across, _quat.perpendicular(u))
     mid = _quat.add(a, _quat.scale(l1, _quat.add(_quat.scale(jnp.cos(alpha), u), _quat.scale(jnp.sin(alpha), n))))
