@@ -234,6 +234,7 @@ def test_lm_on_a_chain_jit_vmap_and_honest_counts():
     np.testing.assert_array_equal(ee.iterations, eager.iterations)
 
 
+@pytest.mark.slow
 def test_lm_default_start_and_seeds():
     """LM's default start (hinges mid-range), and ``seeds=K``: per set the first start that
     converged (else the closest), every seed's iterations counted; bad seeds raise."""
