@@ -107,6 +107,11 @@ class Dofs:
         return len(self.col_joint)
 
     @property
+    def col_hinge(self) -> tuple:
+        """``(n,)`` whether each column is a hinge's."""
+        return tuple(self.hinge[self.joints.index(j)] for j in self.col_joint)
+
+    @property
     def hinge_cols(self) -> tuple:
         """``(joint, column)`` of every hinge."""
         return tuple((j, c[0]) for j, h, c in zip(self.joints, self.hinge, self.cols) if h)
@@ -182,8 +187,7 @@ def geometric_jacobian(topo, offsets, L, prob: LMProblem, dofs: Dofs, table):
     cj, dtype = dofs.col_joint, offsets.dtype
     local = jnp.asarray(np.eye(3)[np.asarray(dofs.col_axis)], dtype)
     if any(dofs.hinge):
-        hinge_col = np.asarray([j in dict(dofs.hinge_cols) for j in cj])
-        local = jnp.where(hinge_col[:, None], take(table.axis, cj, axis=0), local)
+        local = jnp.where(np.asarray(dofs.col_hinge)[:, None], take(table.axis, cj, axis=0), local)
     om = _quat.rotate(_quat.unstack(take(G, cj, axis=0), axis=-1), _quat.unstack(local, axis=-1))  # n world axes
     anc = np.asarray([[j in topo.path[k] for j in cj] for k in range(len(topo.effectors))], dtype)  # (E, n)
     lever = take(P, topo.effectors, axis=0)[:, None, :] - take(P, cj, axis=0)[None]  # (E, n, 3)

@@ -110,7 +110,7 @@ def _run(settings, model, inp: Inputs, topo, table, lean, *, trace, unroll, earl
     tgt = jnp.moveaxis(targets, (-2, -1), (0, 1))
     start = bent_start(offsets, tgt, jnp.moveaxis(rotations, (-2, -1), (0, 1)), tol, topo=topo)
     if isinstance(settings, LevenbergMarquardt):  # LM too starts bent: on its target's line J^T r = 0
-        rot = jnp.moveaxis(jnp.broadcast_to(start, (J, 4) + batch), (0, 1), (-2, -1)).reshape((n, 1, J, 4))
+        rot = jnp.moveaxis(start, (0, 1), (-2, -1)).reshape((n, 1, J, 4))  # bent_start's is (J, 4, *B)
         K = settings.seeds
         if K > 1:  # the extra starts, the same for every set (``_starts``)
             rot = jnp.concatenate([rot, jnp.broadcast_to(extra_starts(model, K), (n, K - 1, J, 4))], axis=1)

@@ -13,6 +13,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._geometry import quat as _quat
 from ._limits import Hinge
 from ._projection import project_limits
 from ._result import IKResult
@@ -43,17 +44,16 @@ def extra_starts(skeleton, seeds: int):
     """``(seeds - 1, J, 4)`` fixed start poses inside the limits: per joint a rotation about
     a random axis by up to ``SEED_AMPLITUDES[k % 3]`` radians, after the default start, projected."""
     J, out = skeleton.num_joints, []
-    base = np.asarray(default_start(skeleton), np.float64)
     for k in range(1, seeds):
         rng = np.random.default_rng(1000 + k)
         ax = rng.normal(size=(J, 3))
         ax /= np.linalg.norm(ax, axis=-1, keepdims=True)
         half = 0.5 * SEED_AMPLITUDES[(k - 1) % len(SEED_AMPLITUDES)] * rng.uniform(size=(J, 1))
-        d = np.concatenate([np.cos(half), np.sin(half) * ax], axis=-1)
-        w0, v0, w1, v1 = base[:, :1], base[:, 1:], d[:, :1], d[:, 1:]
-        q = np.concatenate([w0 * w1 - np.sum(v0 * v1, -1, keepdims=True), w0 * v1 + w1 * v0 + np.cross(v0, v1)], -1)
-        out.append(q)
-    starts = np.stack(out).astype(skeleton.offsets.dtype)
+        out.append(np.concatenate([np.cos(half), np.sin(half) * ax], axis=-1))
+    dtype = skeleton.offsets.dtype
+    turn = _quat.unstack(jnp.asarray(np.stack(out), dtype), axis=-1)  # (seeds - 1, J) components
+    base = _quat.unstack(jnp.asarray(default_start(skeleton)), axis=-1)
+    starts = _quat.stack(_quat.mul(base, turn), axis=-1)
     return project_limits(skeleton, starts) if skeleton.limits is not None else starts
 
 
