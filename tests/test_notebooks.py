@@ -1,9 +1,12 @@
 """Every notebook ships executed (with its outputs and plots), and re-executes headless in its
 reduced-size mode (``JAXSIM_NOTEBOOK_FAST=1``)."""
 
+import os
 import pathlib
 
 import pytest
+
+from _compile_flags import with_fast_compile
 
 nbformat = pytest.importorskip("nbformat")
 nbclient = pytest.importorskip("nbclient")
@@ -32,6 +35,7 @@ def test_notebooks_ship_executed(path):
 def test_notebook_runs(path, monkeypatch, tmp_path):
     monkeypatch.setenv("JAXSIM_NOTEBOOK_FAST", "1")
     monkeypatch.setenv("MPLBACKEND", "Agg")
+    monkeypatch.setenv("XLA_FLAGS", with_fast_compile(os.environ)["XLA_FLAGS"])
     nb = nbformat.read(path, as_version=4)
     for cell in nb.cells:  # run afresh, not the shipped outputs
         if cell.cell_type == "code":

@@ -1,11 +1,15 @@
 """``python -m jaxsim report --quick`` into a temporary folder: tables, figures, key inequalities."""
 
+import os
 import re
-import pytest
 import subprocess
 import sys
 
+import pytest
+
 from PIL import Image
+
+from _compile_flags import with_fast_compile
 
 FIGURES = ["ik_humanoid.png", "ik_error_vs_iterations.png", "ik_error_vs_time.png", "ik_iterations_hist.png", "ik_jitter.png",
            "cloth_pareto.png", "cloth_stability_map.png", "cloth_cost_growth.png", "cloth_newton_log.png"]
@@ -17,7 +21,7 @@ def test_quick_report(tmp_path):
     """One test (one report run, whichever worker gets it): writes, then checks everything."""
     out = tmp_path / "report"
     r = subprocess.run([sys.executable, "-m", "jaxsim", "report", "--quick", "--out", str(out)],
-                       capture_output=True, text=True, timeout=900)
+                       capture_output=True, text=True, timeout=900, env=with_fast_compile(os.environ))
     assert r.returncode == 0, r.stderr[-3000:]
     report = out, (out / "report.md").read_text(), r.stdout
     check_tables_and_figures(report)

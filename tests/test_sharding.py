@@ -9,6 +9,7 @@ import jax
 import numpy as np
 import pytest
 
+from _compile_flags import with_fast_compile
 from jaxsim import _sharding, cloth, ik
 
 SCRIPT = textwrap.dedent("""
@@ -51,7 +52,7 @@ SCRIPT = textwrap.dedent("""
 
 @pytest.mark.slow
 def test_sharded_batches_match_one_device_on_4_forced_devices():
-    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=4", JAX_PLATFORMS="cpu")
+    env = with_fast_compile(dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=4", JAX_PLATFORMS="cpu"))
     r = subprocess.run([sys.executable, "-c", SCRIPT], env=env, capture_output=True, text=True, timeout=600)
     assert r.returncode == 0 and "OK" in r.stdout, r.stderr[-3000:]
 
