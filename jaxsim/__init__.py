@@ -7,9 +7,9 @@ The subpackages are imported on first use (``jaxsim.ik``, ``jaxsim.cloth``, ...)
 import importlib
 
 __version__ = "0.1.0"
-__all__ = ["ik", "cloth", "curves", "viz", "optim", "retain_host_memory"]
+__all__ = ["ik", "cloth", "anim", "curves", "viz", "optim", "retain_host_memory"]
 
-_SUBPACKAGES = ("ik", "cloth", "curves", "viz", "optim")
+_SUBPACKAGES = ("ik", "cloth", "anim", "curves", "viz", "optim")
 
 
 def __getattr__(name):

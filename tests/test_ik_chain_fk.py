@@ -50,12 +50,26 @@ def test_lab_arm():
         (np.zeros(3), "shape"),
         (np.array([[0, 0, 0], [0, 1.0, np.nan]]), "finite"),
         (np.array([[0, 0, 0], [0, np.inf, 0]]), "finite"),
-        (np.array([[0, 0, 0], [0, 1.0, 0], [0, 0, 0]]), "zero-length"),
     ],
 )
 def test_chain_rejects_bad_offsets(offsets, match):
     with pytest.raises(ValueError, match=match):
         ik.Chain(offsets)
+
+
+def test_zero_length_bones_go_through_fk_but_not_the_solvers():
+    """BVH rigs have joints at their parent's position: FK takes them, the solvers name them."""
+    arm = ik.Chain(np.array([[0, 0, 0], [0, 1.0, 0], [0, 0, 0], [1.0, 0, 0]]))
+    assert arm.zero_length_joints() == (2,)
+    q = np.array([[1.0, 0, 0, 0], [1.0, 0, 0, 0], [np.cos(0.5), 0, 0, np.sin(0.5)], [1.0, 0, 0, 0]])
+    P = np.asarray(ik.fk(arm, q).positions)
+    np.testing.assert_allclose(P[2], P[1])
+    np.testing.assert_allclose(P[3], P[2] + [np.cos(1.0), np.sin(1.0), 0], atol=1e-6)
+    for solver in ("fabrik", "ccd", "lm"):
+        with pytest.raises(ValueError, match=r"positive length; joint\(s\) \[2\]"):
+            ik.solve(arm, np.array([[1.0, 1.0, 0]]), solver=solver)
+    with pytest.raises(ValueError, match="zero length; give it axis="):
+        ik.Chain(arm.offsets, limits=(None, ik.SwingTwist(swing=1.0), None, None))
 
 
 def test_chain_is_a_pytree():

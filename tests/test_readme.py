@@ -20,5 +20,6 @@ def test_readme_has_python_blocks():
 
 @pytest.mark.slow
 @pytest.mark.parametrize("k", range(len(python_blocks())))
-def test_readme_block_runs(k, capsys):
+def test_readme_block_runs(k, capsys, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # a block may write files (the BVH one does)
     exec(compile(python_blocks()[k], f"README.md block {k}", "exec"), {"__name__": f"readme_block_{k}"})

@@ -48,6 +48,11 @@ def check_model(model, settings=None):
                         f"{type(model).__name__}")
     if settings is not None and not isinstance(settings, _Settings):
         raise TypeError(f"settings must be jaxsim.ik.FABRIK, CCD or LevenbergMarquardt, got {settings!r}")
+    zero = model.zero_length_joints()
+    if zero:
+        names = f" ({', '.join(model.names[i] for i in zero)})" if model.names else ""
+        raise ValueError(f"the IK solvers need bones of positive length; joint(s) {list(zero)}{names} have zero-length "
+                         "offsets from their parents (FK and jaxsim.anim take them)")
 
 
 def check_flags(optional=(), **flags):

@@ -17,7 +17,7 @@ import numpy as np
 from .._dataclass import is_concrete, pytree_dataclass, static_field
 from .._dtype import as_float, check_array_dtype, tiny
 from .._validate import check_finite
-from ._limits import check_limits
+from ._limits import SwingTwist, check_limits
 
 
 def _check_parents(parents) -> tuple:
@@ -58,7 +58,7 @@ class Skeleton:
 
     Raises:
       ValueError: on wrong shapes, fewer than 2 joints, a parent out of order or out of
-        range, a second root, zero-length bones, non-finite values, duplicate names,
+        range, a second root, non-finite values, duplicate names,
         limits for a different number of joints, a half-precision dtype, or a skeleton
         too large for its dtype (squared distances across it must not overflow: about
         4e18 scene units in float32).
@@ -90,10 +90,12 @@ class Skeleton:
         offsets = as_float(self.offsets)
         dtype = offsets.dtype
         lengths = np.linalg.norm(a[1:].astype(np.float64), axis=-1)
-        if np.any(lengths <= tiny(dtype)):
-            bad = (np.flatnonzero(lengths <= tiny(dtype)) + 1).tolist()
-            raise ValueError(f"Skeleton has zero-length bones (shorter than {tiny(dtype):.1e} in {dtype}) at "
-                             f"joint(s) {bad}")
+        for i, lim in enumerate(self.limits or ()):
+            kids = self.children[i]
+            bone = kids[0] if kids else i
+            if isinstance(lim, SwingTwist) and lim.axis is None and bone > 0 and lengths[bone - 1] <= tiny(dtype):
+                raise ValueError(f"joint {i}'s SwingTwist takes its twist axis from bone {bone}, which has zero length; "
+                                 "give it axis=")
         span = float(np.abs(a[0].astype(np.float64)).max() + lengths.sum())
         limit = float(np.sqrt(np.finfo(dtype).max)) / 8
         if span >= limit:
@@ -104,6 +106,15 @@ class Skeleton:
     def with_limits(self, limits) -> Skeleton:
         """The same skeleton with ``limits`` (one per joint, or ``None`` for none)."""
         return dataclasses.replace(self, limits=limits)
+
+    def zero_length_joints(self) -> tuple:
+        """Joints whose offset from their parent is zero (shorter than ``_dtype.tiny``), as
+        in most BVH rigs (CMU's hip, collar and hand joints).  FK takes them; the IK solvers
+        do not (``ValueError`` at their boundary).  Empty when the offsets are traced."""
+        if not is_concrete(self.offsets):
+            return ()
+        a = np.asarray(self.offsets, np.float64)
+        return tuple(int(i) + 1 for i in np.flatnonzero(np.linalg.norm(a[1:], axis=-1) <= tiny(self.offsets.dtype)))
 
     @property
     def num_joints(self) -> int:

@@ -57,13 +57,14 @@ def _s(v):
 
 
 def fk_stacked(parents, offsets, L):
-    """FK of stacked rotations: ``L (..., J, 4)``, ``offsets (J, 3)`` -> ``(P (..., J, 3), G (..., J, 4))``.
+    """FK of stacked rotations: ``L (..., J, 4)``, ``offsets (J, 3)`` (or ``(..., J, 3)``,
+    per batch element: a clip's moving root) -> ``(P (..., J, 3), G (..., J, 4))``.
 
     ``G_i = G_p L_i``, ``P_i = P_p + R(G_p) offsets[i]`` (``_fk``), one tree level at a time.
     """
     levels, order = tree_levels(tuple(parents))
     G = [L[..., :1, :]]
-    P = [jnp.broadcast_to(offsets[:1], L.shape[:-2] + (1, 3))]
+    P = [jnp.broadcast_to(offsets[..., :1, :], L.shape[:-2] + (1, 3))]
     for joints, prow in levels:
         gp, pp = _q(take(G[-1], prow)), _q(take(P[-1], prow))
         P.append(_s(_quat.add(pp, _quat.rotate(gp, _q(take(offsets, joints))))))

@@ -1,0 +1,79 @@
+"""A clip: a skeleton and its local rotations and root positions over frames."""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+
+from .._dataclass import pytree_dataclass, static_field
+from .._geometry import quat as _quat
+from ..ik import Skeleton
+from ..ik._stacked import fk_stacked
+
+
+@pytree_dataclass
+class Motion:
+    """``T`` frames of a ``J``-joint skeleton, as read from a BVH file.
+
+    Attributes:
+      skeleton: ``ik.Skeleton`` with the file's joint names, in file order; ``offsets[0]``
+        is the root's ``OFFSET``, ``offsets[i]`` joint ``i``'s ``OFFSET`` (scene units,
+        the file's times ``scale``).
+      rotations: ``(T, J, 4)`` local rotations (w, x, y, z); identity for a joint without
+        rotation channels.
+      root_positions: ``(T, 3)`` the root's world position per frame (its ``OFFSET`` plus
+        its position channels).
+      translations: ``(T, J, 3)`` per-frame translations added to the offsets, when a
+        joint other than the root has position channels (their values; zero elsewhere and
+        on the root's row), else ``None``.
+      frame_time: static, seconds per frame.
+      channels: static, per joint the tuple of its channel names in file order
+        (``"Xposition"``, ..., ``"Zrotation"``).
+      end_sites: static, per ``End Site`` a ``(joint, (x, y, z))`` pair: the joint it
+        hangs from and its offset in that joint's frame (scene units).
+    """
+
+    skeleton: Skeleton
+    rotations: jax.Array
+    root_positions: jax.Array
+    translations: jax.Array | None = None
+    frame_time: float = static_field(default=1 / 30)
+    channels: tuple = static_field(default=())
+    end_sites: tuple = static_field(default=())
+
+    @property
+    def num_frames(self) -> int:
+        """``T`` (a static Python int)."""
+        return self.rotations.shape[0]
+
+    def rotation_order(self, joint: int) -> str:
+        """The joint's rotation axes in composition order, e.g. ``"ZXY"`` (``""`` if none)."""
+        return "".join(c[0] for c in self.channels[joint] if c.endswith("rotation"))
+
+
+def _offsets(motion: Motion) -> jax.Array:
+    """``(T, J, 3)`` per-frame offsets, the root's row its world position."""
+    off = motion.skeleton.offsets
+    if motion.translations is not None:
+        off = off + motion.translations
+    off = jnp.broadcast_to(off, (motion.num_frames,) + motion.skeleton.offsets.shape)
+    return off.at[:, 0].set(motion.root_positions)
+
+
+@functools.partial(jax.jit, static_argnames=("parents",))
+def _fk(parents, offsets, rotations):
+    return fk_stacked(parents, offsets, _quat.unit_quaternions(rotations))
+
+
+def positions(motion: Motion) -> jax.Array:
+    """``(T, J, 3)`` world positions of every joint over the clip: one jitted FK, batched
+    over frames, one tree level at a time (``ik._stacked.fk_stacked``).  Differentiable in
+    the offsets, rotations and root positions."""
+    return _fk(motion.skeleton.parents, _offsets(motion), motion.rotations)[0]
+
+
+def global_rotations(motion: Motion) -> jax.Array:
+    """``(T, J, 4)`` world rotations of every joint over the clip."""
+    return _fk(motion.skeleton.parents, _offsets(motion), motion.rotations)[1]
