@@ -1,0 +1,100 @@
+"""Foot contacts of a clip: when a foot is down, and how far it slides while down."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._motion import Motion, positions
+
+
+def _joints(motion: Motion, feet) -> tuple:
+    names = motion.skeleton.names or ()
+    out = []
+    for f in feet if isinstance(feet, (tuple, list)) else (feet,):
+        if isinstance(f, str):
+            if f not in names:
+                raise ValueError(f"no joint named {f!r}; the clip's joints are {list(names)}")
+            out.append(names.index(f))
+        elif isinstance(f, (int, np.integer)) and 0 <= int(f) < motion.skeleton.num_joints:
+            out.append(int(f))
+        else:
+            raise ValueError(f"feet must be joint names or indices in [0, {motion.skeleton.num_joints}), got {f!r}")
+    if not out:
+        raise ValueError("feet must name at least one joint")
+    return tuple(out)
+
+
+def _check(name, v, positive=True):
+    if not (isinstance(v, (int, float, np.floating)) and np.isfinite(v) and (v > 0 if positive else True)):
+        raise ValueError(f"{name} must be a finite number{' > 0' if positive else ''}, got {v!r}")
+
+
+def foot_contacts(motion: Motion, feet, *, height: float = 0.05, speed: float = 0.2, release: float = 1.5,
+                  min_frames: int = 3, up: int = 1, floor=None) -> np.ndarray:
+    """``(T, F)`` bool: frames where each foot is planted.
+
+    A foot comes down when it is within ``height`` of the floor and moves slower than
+    ``speed``; it stays down until it rises above ``release * height`` or moves faster than
+    ``release * speed`` (hysteresis, so that noise near a threshold does not flicker).
+    Spans shorter than ``min_frames`` are dropped.
+
+    Args:
+      motion: the clip.
+      feet: joint names or indices (e.g. ``("LeftToe", "RightToe")``).
+      height: scene units (metres for :func:`cmu_walk`) above the floor.
+      speed: scene units per second, the joint's speed (central differences).
+      release: ``> 1``, the hysteresis factor.
+      min_frames: the shortest span kept.
+      up: the up axis (0, 1 or 2; BVH files are usually y up).
+      floor: the floor height; default each foot's 5th percentile of height over the clip
+        (its lowest point, robust to a few outlying frames).
+    """
+    idx = _joints(motion, feet)
+    for name, v in (("height", height), ("speed", speed)):
+        _check(name, v)
+    if not (isinstance(release, (int, float)) and release >= 1):
+        raise ValueError(f"release must be a number >= 1, got {release!r}")
+    if not (isinstance(min_frames, int) and min_frames >= 1):
+        raise ValueError(f"min_frames must be an integer >= 1, got {min_frames!r}")
+    if up not in (0, 1, 2):
+        raise ValueError(f"up must be 0, 1 or 2, got {up!r}")
+    P = np.asarray(positions(motion), np.float64)[:, idx]  # (T, F, 3)
+    T = P.shape[0]
+    h = P[..., up] - (np.percentile(P[..., up], 5, axis=0) if floor is None else float(floor))
+    v = np.linalg.norm(np.gradient(P, motion.frame_time, axis=0), axis=-1) if T > 1 else np.zeros(h.shape)
+    down = np.zeros(h.shape, bool)
+    for f in range(len(idx)):
+        on = False
+        for t in range(T):
+            on = (h[t, f] <= release * height and v[t, f] <= release * speed) if on else \
+                 (h[t, f] <= height and v[t, f] <= speed)
+            down[t, f] = on
+        for a, b in contact_spans(down[:, f]):
+            if b - a < min_frames:
+                down[a:b, f] = False
+    return down
+
+
+def contact_spans(down) -> list:
+    """``[(start, stop), ...]`` the runs of True in ``down (T,)`` (``stop`` exclusive)."""
+    d = np.concatenate([[False], np.asarray(down, bool), [False]])
+    edges = np.flatnonzero(d[1:] != d[:-1])
+    return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2])]
+
+
+def foot_slide(motion: Motion, feet, contacts, *, up: int = 1) -> np.ndarray:
+    """``(F,)`` per foot, the largest horizontal distance (scene units) its joint moves from
+    where it stands at the start of a contact span, over all its spans (``contacts (T,
+    F)`` from :func:`foot_contacts`).  0 where a foot has no span."""
+    idx = _joints(motion, feet)
+    contacts = np.asarray(contacts, bool)
+    if contacts.shape != (motion.num_frames, len(idx)):
+        raise ValueError(f"contacts must have shape ({motion.num_frames}, {len(idx)}), got {contacts.shape}")
+    P = np.asarray(positions(motion), np.float64)[:, idx]
+    flat = [k for k in range(3) if k != up]
+    out = np.zeros(len(idx))
+    for f in range(len(idx)):
+        for a, b in contact_spans(contacts[:, f]):
+            d = P[a:b, f][:, flat] - P[a, f][flat]
+            out[f] = max(out[f], float(np.sqrt((d * d).sum(-1)).max()))
+    return out
