@@ -1,10 +1,11 @@
-"""BVH clips: reading and batched FK of the CMU walk tiled to 10,000 frames, against pybvh.
+"""BVH clips: reading and batched FK of the CMU walk tiled to 10,000 frames against pybvh, and foot locking.
 
 ``python benchmarks/anim.py [--frames N]``.  The shipped CMU clip (31 joints) is tiled
 to ``N`` frames (default 10,000) and written as one BVH file; ``anim.read_bvh`` and
 ``anim.positions`` (one jitted FK over frames, compile apart from the warm run) are
 timed on it, float32 and float64, beside pybvh's reader and ``Bvh.joint_positions``
-(NumPy) on the same file, with the largest position difference between the two.
+(NumPy) on the same file, with the largest position difference between the two;
+``anim.lock_feet`` on the clip itself, with the toes' slide before and after.
 pybvh is a bench-only extra (``pip install -e ".[bench]"``).  Writes
 ``benchmarks/results/anim.json``.
 """
@@ -33,6 +34,7 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=10_000)
     args = ap.parse_args()
     T = args.frames
+    t_start = time.perf_counter()
     clip = anim.read_bvh(anim.CMU_WALK, dtype=np.float64)
     reps = -(-T // clip.num_frames)
     tiled = anim.Motion(skeleton=clip.skeleton, rotations=np.tile(np.asarray(clip.rotations), (reps, 1, 1))[:T],
@@ -54,6 +56,19 @@ def main() -> None:
             print(f"anim.positions {name}: compile {r['compile_s']:.2f} s, run {1e3 * r['run_s']:.2f} ms "
                   f"({T / r['run_s']:,.0f} frames/s)")
         print(f"anim.read_bvh: {out['read_s']:.2f} s for {T} frames ({out['file_mb']:.1f} MB)")
+        for dt in (np.float64, np.float32):  # foot locking on the clip itself (994 frames)
+            walk = anim.cmu_walk(dt)
+            feet = ("LeftToe", "RightToe")
+            down = anim.foot_contacts(walk, feet)
+            r = time_call(lambda: anim.lock_feet(walk, feet, down).rotations)
+            locked = anim.lock_feet(walk, feet, down)
+            name = np.dtype(dt).name
+            out[f"lock_feet_{name}"] = {**r, "frames": walk.num_frames, "us_per_frame": 1e6 * r["run_s"] / walk.num_frames,
+                                        "slide_before_m": anim.foot_slide(walk, feet, down).tolist(),
+                                        "slide_after_m": anim.foot_slide(locked, feet, down).tolist()}
+            print(f"anim.lock_feet {name} on the CMU walk ({walk.num_frames} frames): compile {r['compile_s']:.2f} s, "
+                  f"run {1e3 * r['run_s']:.1f} ms; toe slide {1e3 * max(out[f'lock_feet_{name}']['slide_before_m']):.1f} mm "
+                  f"-> {1e3 * max(out[f'lock_feet_{name}']['slide_after_m']):.2g} mm")
         try:
             import pybvh
         except ImportError:
@@ -71,6 +86,7 @@ def main() -> None:
             print(f"pybvh: read {read:.2f} s, joint_positions {1e3 * fk:.1f} ms ({T / fk:,.0f} frames/s); "
                   f"largest difference from anim.positions {diff:.1e} (file units)")
             out["speedup_positions_float64"] = fk / out["positions_float64"]["run_s"]
+    out["wall_s"] = time.perf_counter() - t_start
     write("anim", out)
 
 

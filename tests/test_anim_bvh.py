@@ -217,6 +217,15 @@ def test_malformed_files_name_their_line(tmp_path, edit, match):
 def test_bad_arguments():
     with pytest.raises(ValueError, match="scale"):
         anim.read_bvh(CLIP, scale=0.0)
+    m = anim.read_bvh(CLIP, dtype=np.float32)
+    for kw, match in ((dict(rotations=m.rotations[:, :5]), r"rotations must have shape \(T, 31, 4\)"),
+                      (dict(root_positions=m.root_positions[:10]), r"root_positions must have shape \(994, 3\)"),
+                      (dict(translations=np.zeros((994, 31, 2))), "translations must have shape"),
+                      (dict(frame_time=0.0), "frame_time"), (dict(channels=((),)), "channels must name")):
+        with pytest.raises(ValueError, match=match):
+            dataclasses.replace(m, **kw)
+    with pytest.raises(TypeError, match="Skeleton"):
+        dataclasses.replace(m, skeleton="hips")
     with pytest.raises(ValueError, match="order"):
         anim.quat_to_euler(np.array([1.0, 0, 0, 0]), "XXY")
 

@@ -6,8 +6,9 @@ import functools
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
-from .._dataclass import pytree_dataclass, static_field
+from .._dataclass import is_concrete, pytree_dataclass, static_field
 from .._geometry import quat as _quat
 from ..ik import Skeleton
 from ..ik._stacked import fk_stacked
@@ -42,6 +43,24 @@ class Motion:
     frame_time: float = static_field(default=1 / 30)
     channels: tuple = static_field(default=())
     end_sites: tuple = static_field(default=())
+
+    def __post_init__(self):
+        if not isinstance(self.skeleton, Skeleton):
+            raise TypeError(f"skeleton must be a jaxsim.ik.Skeleton, got {type(self.skeleton).__name__}")
+        if not is_concrete(self.rotations, self.root_positions):
+            return  # rebuilt inside a transformation
+        J = self.skeleton.num_joints
+        r, p = np.shape(self.rotations), np.shape(self.root_positions)
+        if len(r) != 3 or r[1:] != (J, 4):
+            raise ValueError(f"rotations must have shape (T, {J}, 4) for {J} joints, got {r}")
+        if p != (r[0], 3):
+            raise ValueError(f"root_positions must have shape ({r[0]}, 3) for {r[0]} frames, got {p}")
+        if self.translations is not None and np.shape(self.translations) != (r[0], J, 3):
+            raise ValueError(f"translations must have shape ({r[0]}, {J}, 3) or be None, got {np.shape(self.translations)}")
+        if not (np.isfinite(self.frame_time) and self.frame_time > 0):
+            raise ValueError(f"frame_time must be > 0 seconds, got {self.frame_time!r}")
+        if self.channels and len(self.channels) != J:
+            raise ValueError(f"channels must name each of the {J} joints' channels, got {len(self.channels)} entries")
 
     @property
     def num_frames(self) -> int:
