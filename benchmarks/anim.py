@@ -5,7 +5,8 @@ to ``N`` frames (default 10,000) and written as one BVH file; ``anim.read_bvh`` 
 ``anim.positions`` (one jitted FK over frames, compile apart from the warm run) are
 timed on it, float32 and float64, beside pybvh's reader and ``Bvh.joint_positions``
 (NumPy) on the same file, with the largest position difference between the two;
-``anim.lock_feet`` on the clip itself, with the toes' slide before and after.
+``anim.lock_feet`` on the clip itself, with the toes' slide before and after, and
+``anim.retarget`` of the clip onto ``ik.humanoid()`` with its effector errors.
 pybvh is a bench-only extra (``pip install -e ".[bench]"``).  Writes
 ``benchmarks/results/anim.json``.
 """
@@ -26,7 +27,7 @@ from _common import machine, time_call, time_plain, write  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 
-from jaxsim import anim  # noqa: E402
+from jaxsim import anim, ik  # noqa: E402
 
 
 def main() -> None:
@@ -69,6 +70,20 @@ def main() -> None:
             print(f"anim.lock_feet {name} on the CMU walk ({walk.num_frames} frames): compile {r['compile_s']:.2f} s, "
                   f"run {1e3 * r['run_s']:.1f} ms; toe slide {1e3 * max(out[f'lock_feet_{name}']['slide_before_m']):.1f} mm "
                   f"-> {1e3 * max(out[f'lock_feet_{name}']['slide_after_m']):.2g} mm")
+        walk = anim.cmu_walk(np.float32)  # retargeting the clip onto the humanoid (LM per frame, warm-started)
+        mapping = {"l_hand": "LeftWrist", "r_hand": "RightWrist", "l_ankle": "LeftAnkle", "r_ankle": "RightAnkle"}
+        H = ik.humanoid(np.float32)
+        r = time_call(lambda: anim.retarget(walk, H, mapping).motion.rotations, repeats=2)
+        res = anim.retarget(walk, H, mapping)
+        err = np.asarray(res.error)
+        out["retarget_float32"] = {**r, "frames": walk.num_frames, "ms_per_frame": 1e3 * r["run_s"] / walk.num_frames,
+                                   "error_median_m": np.median(err, 0).tolist(),
+                                   "error_p95_m": np.percentile(err, 95, 0).tolist(), "error_max_m": err.max(0).tolist(),
+                                   "converged": float(np.mean(np.asarray(res.converged))),
+                                   "limit_violation": float(np.max(np.asarray(ik.limit_violation(H, res.motion.rotations))))}
+        print(f"anim.retarget onto ik.humanoid() float32 ({walk.num_frames} frames): compile {r['compile_s']:.1f} s, "
+              f"run {r['run_s']:.2f} s; error p95 {1e3 * np.percentile(err, 95):.1f} mm, "
+              f"{100 * out['retarget_float32']['converged']:.1f}% of frames converged")
         try:
             import pybvh
         except ImportError:
