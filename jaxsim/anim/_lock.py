@@ -58,8 +58,10 @@ REACH = 0.9995
 
 
 @functools.partial(jax.jit, static_argnames=("parents", "legs", "counts", "up"))
-def _lock(parents, legs, counts, offsets, rotations, weights, segs, up):
-    P, G = _fk(parents, offsets, rotations)
+def _lock(parents, legs, counts, offsets, root, rotations, weights, segs, up):
+    P, G = _fk(parents, offsets, root, rotations)
+    bone = lambda j: offsets[..., j, :]  # noqa: E731  (3,) or (T, 3)
+    length = lambda j: jnp.linalg.norm(offsets.reshape(-1, len(parents), 3)[0, j])  # noqa: E731
     q = lambda j: _quat.unstack(G[:, j], -1)  # noqa: E731
     v = lambda x: _quat.unstack(x, -1)  # noqa: E731
     ankles, drop = [], jnp.zeros(P.shape[:1], P.dtype)
@@ -70,10 +72,10 @@ def _lock(parents, legs, counts, offsets, rotations, weights, segs, up):
         cnt = jax.ops.segment_sum(inside.astype(pe.dtype), segs[:, f], num_segments=counts[f] + 1)
         lock = (sums / jnp.maximum(cnt, 1.0)[:, None])[segs[:, f]]  # each span's mean position
         tgt = pe + weights[:, f, None] * (lock - pe)
-        ankle = _quat.stack(_quat.sub(v(tgt), _quat.rotate(q(a), v(offsets[:, e]))), -1)
+        ankle = _quat.stack(_quat.sub(v(tgt), _quat.rotate(q(a), v(bone(e)))), -1)
         ankles.append(ankle)
         # the root's drop along -up that brings the hip within REACH of the leg's length of the ankle
-        r = REACH * (jnp.linalg.norm(offsets[0, k]) + jnp.linalg.norm(offsets[0, a]))
+        r = REACH * (length(k) + length(a))
         d = P[:, h] - ankle
         s = d[:, up]
         q2 = jnp.sum(d * d, -1) - s * s
@@ -84,7 +86,7 @@ def _lock(parents, legs, counts, offsets, rotations, weights, segs, up):
     for f, (e, a, k, h) in enumerate(legs):
         ph, pk, pa = v(P[:, h]), v(P[:, k]), v(P[:, a])
         pole = _quat.add(pk, _quat.sub(pk, _quat.scale(0.5, _quat.add(ph, pa))))
-        lengths = jnp.stack([jnp.linalg.norm(offsets[0, k]), jnp.linalg.norm(offsets[0, a])])
+        lengths = jnp.stack([length(k), length(a)])
         tb = two_bone(P[:, h], ankles[f], _quat.stack(pole, -1), lengths)
         dh = _quat.from_two_vectors(_quat.sub(pk, ph), _quat.sub(v(tb.mid), ph))
         gh = _quat.mul(dh, q(h))
@@ -135,6 +137,6 @@ def lock_feet(motion: Motion, feet, contacts=None, *, blend: int = 6, up: int = 
         raise ValueError(f"contacts must have shape ({motion.num_frames}, {len(legs)}), got {contacts.shape}")
     ws, segs, counts = zip(*(_weights(contacts[:, f], blend) for f in range(len(legs))))
     dtype = motion.rotations.dtype
-    R, drop = _lock(motion.skeleton.parents, legs, tuple(counts), _offsets(motion), motion.rotations,
+    R, drop = _lock(motion.skeleton.parents, legs, tuple(counts), _offsets(motion), motion.root_positions, motion.rotations,
                     jnp.asarray(np.stack(ws, 1), dtype), jnp.asarray(np.stack(segs, 1)), up)
     return dataclasses.replace(motion, rotations=R, root_positions=motion.root_positions.at[:, up].add(-drop))

@@ -5,7 +5,6 @@ from __future__ import annotations
 import functools
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from .._dataclass import is_concrete, pytree_dataclass, static_field
@@ -73,26 +72,27 @@ class Motion:
 
 
 def _offsets(motion: Motion) -> jax.Array:
-    """``(T, J, 3)`` per-frame offsets, the root's row its world position."""
+    """``(J, 3)`` the skeleton's offsets, or ``(T, J, 3)`` with the translations added."""
     off = motion.skeleton.offsets
-    if motion.translations is not None:
-        off = off + motion.translations
-    off = jnp.broadcast_to(off, (motion.num_frames,) + motion.skeleton.offsets.shape)
-    return off.at[:, 0].set(motion.root_positions)
+    return off if motion.translations is None else off + motion.translations
 
 
 @functools.partial(jax.jit, static_argnames=("parents",))
-def _fk(parents, offsets, rotations):
-    return fk_stacked(parents, offsets, _quat.unit_quaternions(rotations))
+def _fk(parents, offsets, root, rotations):
+    """``(P (T, J, 3), G (T, J, 4))`` of ``offsets (J, 3)`` or ``(T, J, 3)`` and the root's
+    world positions ``root (T, 3)``: FK about the root, then the root added (its rotation
+    turns only its children's offsets)."""
+    P, G = fk_stacked(parents, offsets.at[..., 0, :].set(0.0), _quat.unit_quaternions(rotations))
+    return P + root[:, None], G
 
 
 def positions(motion: Motion) -> jax.Array:
     """``(T, J, 3)`` world positions of every joint over the clip: one jitted FK, batched
     over frames, one tree level at a time (``ik._stacked.fk_stacked``).  Differentiable in
     the offsets, rotations and root positions."""
-    return _fk(motion.skeleton.parents, _offsets(motion), motion.rotations)[0]
+    return _fk(motion.skeleton.parents, _offsets(motion), motion.root_positions, motion.rotations)[0]
 
 
 def global_rotations(motion: Motion) -> jax.Array:
     """``(T, J, 4)`` world rotations of every joint over the clip."""
-    return _fk(motion.skeleton.parents, _offsets(motion), motion.rotations)[1]
+    return _fk(motion.skeleton.parents, _offsets(motion), motion.root_positions, motion.rotations)[1]
