@@ -58,7 +58,7 @@ def _s(v):
 
 def fk_stacked(parents, offsets, L):
     """FK of stacked rotations: ``L (..., J, 4)``, ``offsets (J, 3)`` (or ``(..., J, 3)``,
-    per batch element: a clip's moving root) -> ``(P (..., J, 3), G (..., J, 4))``.
+    per batch element: a clip's translated joints) -> ``(P (..., J, 3), G (..., J, 4))``.
 
     ``G_i = G_p L_i``, ``P_i = P_p + R(G_p) offsets[i]`` (``_fk``), one tree level at a time.
     """
