@@ -217,6 +217,8 @@ def test_malformed_files_name_their_line(tmp_path, edit, match):
 def test_bad_arguments():
     with pytest.raises(ValueError, match="scale"):
         anim.read_bvh(CLIP, scale=0.0)
+    with pytest.raises(ValueError, match="float32 or float64"):
+        anim.read_bvh(CLIP, dtype=np.float16)
     m = anim.read_bvh(CLIP, dtype=np.float32)
     for kw, match in ((dict(rotations=m.rotations[:, :5]), r"rotations must have shape \(T, 31, 4\)"),
                       (dict(root_positions=m.root_positions[:10]), r"root_positions must have shape \(994, 3\)"),

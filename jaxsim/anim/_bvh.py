@@ -16,7 +16,7 @@ import os
 import jax.numpy as jnp
 import numpy as np
 
-from .._dtype import default_float
+from .._dtype import check_float_dtype, default_float
 from ..ik import Skeleton
 from ._euler import ORDERS, continuous_euler, euler_to_quat
 from ._motion import Motion
@@ -188,7 +188,8 @@ def read_bvh(path, scale: float = 1.0, dtype=None) -> Motion:
     Args:
       path: the file.
       scale: scene units per file unit (CMU's files: ``0.056444`` for metres).
-      dtype: float32 or float64; default jaxsim's (float64 under ``jax_enable_x64``).
+      dtype: float32 or float64 (float64 only under ``jax_enable_x64``, else float32);
+        default jaxsim's.
 
     Raises:
       ValueError: with the line number, on unbalanced braces, a wrong channel count or an
@@ -199,7 +200,7 @@ def read_bvh(path, scale: float = 1.0, dtype=None) -> Motion:
         raise ValueError(f"scale must be a finite number > 0, got {scale!r}")
     with open(os.fspath(path), encoding="utf-8") as f:
         joints, ends, frame_time, values = parse(f.read(), os.fspath(path))
-    dtype = np.dtype(dtype or default_float())
+    dtype = default_float() if dtype is None else check_float_dtype("read_bvh", dtype)  # float64 needs x64
     J, T = len(joints), values.shape[0]
     offsets = scale * np.asarray([j["offset"] for j in joints], np.float64)
     rot = np.zeros((T, J, 4))
