@@ -15,7 +15,14 @@ def test_demo_fast_writes_summary(tmp_path):
     assert "| circle | fabrik | 150 |" in text and "Cloth" in text
     assert str(out) in r.stdout or os.path.abspath(str(out)) in r.stdout
     assert "[demo] IK 1/7" in r.stdout and "[demo] cloth" in r.stdout  # progress per scene
-    assert "[demo] section 5/5, cloth with colliders: done in" in r.stdout
+    assert "[demo] section 5/6, cloth with colliders: done in" in r.stdout
+    assert "[demo] section 6/6, the CMU walk: done in" in r.stdout
+    row = text.split("## Animation: the CMU walk")[1].splitlines()[4].split("|")
+    assert row[1].strip() == "240" and float(row[3]) < 0.01 < float(row[2])  # the toes slid, and do not after locking
+    from PIL import Image
+
+    walk = Image.open(out / "anim_walk.gif")
+    assert walk.n_frames == 12 and min(walk.size) >= 480
     assert "(running" not in text  # the summary, written after every section, is complete
     from PIL import Image
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import time
 
+from .demo_anim import anim_section
 from .demo_contact import contact_section
 
 
@@ -156,7 +157,7 @@ def run(out: str = "jaxsim-demo", fast: bool = False, checkpoint=None) -> int:
     path = os.path.join(out, "summary.md")
     sections = ((_ik_section, "IK on the lab arm"), (_humanoid_section, "the humanoid"),
                 (_limits_section, "the humanoid with limits"), (_cloth_section, "the lab cloth"),
-                (contact_section, "cloth with colliders"))
+                (contact_section, "cloth with colliders"), (anim_section, "the CMU walk"))
     for k, (section, what) in enumerate(sections, start=1):
         with Stage("[demo]", f"section {k}/{len(sections)}, {what}", key=f"demo {mode} {section.__name__}"):
             section(out, fast, lines)
@@ -169,5 +170,5 @@ def run(out: str = "jaxsim-demo", fast: bool = False, checkpoint=None) -> int:
         f.write("\n".join(lines) + "\n")
     print("\n".join(lines))
     print(f"[demo] wrote {os.path.abspath(out)}/ (summary.md, ik_*.gif, ik_*.png, humanoid.gif, cloth.gif, cloth.png, "
-          "cloth_sphere.gif, cloth_floor.gif)")
+          "cloth_sphere.gif, cloth_floor.gif, anim_walk.gif)")
     return 0

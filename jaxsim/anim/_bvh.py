@@ -229,8 +229,9 @@ def read_bvh(path, scale: float = 1.0, dtype=None) -> Motion:
 
 
 def cmu_walk(dtype=None) -> Motion:
-    """The shipped CMU clip 131_01 (:data:`CMU_WALK`) in metres: a person starting, walking
-    and stopping, 994 frames at 120 fps, y up."""
+    """The shipped CMU clip 131_01 (:data:`CMU_WALK`) in metres, 994 frames at 120 fps, y up:
+    a person standing, crouching down and up (frames 360-480), walking about 1 m/s along
+    +z (540-720) and stopping."""
     return read_bvh(CMU_WALK, scale=CMU_SCALE, dtype=dtype)
 
 
