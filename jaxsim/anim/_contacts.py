@@ -7,21 +7,23 @@ import numpy as np
 from ._motion import Motion, positions
 
 
-def _joints(motion: Motion, feet) -> tuple:
-    names = motion.skeleton.names or ()
+def joint_ids(skeleton, joints, what: str = "feet") -> tuple:
+    """Joint ids of ``joints`` (names, via ``Skeleton.index``, or indices), at least one."""
     out = []
-    for f in feet if isinstance(feet, (tuple, list)) else (feet,):
+    for f in joints if isinstance(joints, (tuple, list)) else (joints,):
         if isinstance(f, str):
-            if f not in names:
-                raise ValueError(f"no joint named {f!r}; the clip's joints are {list(names)}")
-            out.append(names.index(f))
-        elif isinstance(f, (int, np.integer)) and 0 <= int(f) < motion.skeleton.num_joints:
+            out.append(skeleton.index(f))
+        elif isinstance(f, (int, np.integer)) and 0 <= int(f) < skeleton.num_joints:
             out.append(int(f))
         else:
-            raise ValueError(f"feet must be joint names or indices in [0, {motion.skeleton.num_joints}), got {f!r}")
+            raise ValueError(f"{what} must be joint names or indices in [0, {skeleton.num_joints}), got {f!r}")
     if not out:
-        raise ValueError("feet must name at least one joint")
+        raise ValueError(f"{what} must name at least one joint")
     return tuple(out)
+
+
+def _joints(motion: Motion, feet) -> tuple:
+    return joint_ids(motion.skeleton, feet)
 
 
 def _check(name, v, positive=True):

@@ -11,7 +11,7 @@ import numpy as np
 from .._dataclass import pytree_dataclass
 from .._geometry import quat as _quat
 from .. import ik
-from ._contacts import _joints
+from ._contacts import joint_ids
 from ._motion import Motion, global_rotations, positions
 
 
@@ -71,13 +71,8 @@ def retarget(motion: Motion, skeleton, mapping: dict, *, scale=None, solver="lm"
         raise TypeError(f"skeleton must be a jaxsim.ik.Skeleton, got {type(skeleton).__name__}")
     if not isinstance(mapping, dict) or not mapping:
         raise ValueError("mapping must be a non-empty dict {target joint: source joint}")
-    src = _joints(motion, tuple(mapping.values()))
-    names = skeleton.names or ()
-    tgt = []
-    for t in mapping:
-        if isinstance(t, str) and t not in names:
-            raise ValueError(f"the target skeleton has no joint named {t!r}; its joints are {list(names)}")
-        tgt.append(names.index(t) if isinstance(t, str) else int(t))
+    src = joint_ids(motion.skeleton, tuple(mapping.values()), "mapping's source joints")
+    tgt = list(joint_ids(skeleton, tuple(mapping), "mapping's target joints"))
     if 0 in tgt or 0 in src:
         raise ValueError("mapping must not name a root: the roots are mapped to each other")
     dtype = skeleton.offsets.dtype
