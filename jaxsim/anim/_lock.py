@@ -19,6 +19,7 @@ from ._motion import Motion, _fk, _offsets
 def _legs(motion: Motion, feet) -> tuple:
     """Per foot ``(foot, ankle, knee, hip)``: the foot joint and the three joints above it."""
     par = motion.skeleton.parents
+    zero_length = motion.skeleton.zero_length_joints()
     legs = []
     for e in _joints(motion, feet):
         a = par[e]
@@ -26,7 +27,7 @@ def _legs(motion: Motion, feet) -> tuple:
         h = par[k] if k > 0 else -1
         if h < 0:
             raise ValueError(f"foot joint {e} needs three joints above it (ankle, knee, hip), the root excluded")
-        zero = [j for j in (e, a, k) if j in motion.skeleton.zero_length_joints()]
+        zero = [j for j in (e, a, k) if j in zero_length]
         if zero:
             raise ValueError(f"foot joint {e}'s leg has zero-length bones at joints {zero}; name the toe, below a "
                              "hip, knee and ankle with bones")
@@ -39,7 +40,7 @@ def _legs(motion: Motion, feet) -> tuple:
 def _weights(down: np.ndarray, blend: int):
     """``(w (T,), seg (T,))``: 1 inside a span, a smoothstep ramp over ``blend`` frames on
     each side, 0 elsewhere; ``seg`` the span each frame blends toward (its index, or the
-    number of spans for frames that blend toward none)."""
+    number of spans, at most ``T``, for frames that blend toward none)."""
     T = len(down)
     spans = contact_spans(down)
     w, seg = np.zeros(T), np.full(T, len(spans))
@@ -50,26 +51,27 @@ def _weights(down: np.ndarray, blend: int):
             x = x * x * (3 - 2 * x)
             if x > w[t]:
                 w[t], seg[t] = x, k
-    return w, seg, len(spans)
+    return w, seg
 
 
 #: The share of a leg's length the hip may be from the ankle before the root is lowered.
 REACH = 0.9995
 
 
-@functools.partial(jax.jit, static_argnames=("parents", "legs", "counts", "up"))
-def _lock(parents, legs, counts, offsets, root, rotations, weights, segs, up):
+@functools.partial(jax.jit, static_argnames=("parents", "legs", "up"))
+def _lock(parents, legs, offsets, root, rotations, weights, segs, up):
     P, G = _fk(parents, offsets, root, rotations)
     bone = lambda j: offsets[..., j, :]  # noqa: E731  (3,) or (T, 3)
     length = lambda j: jnp.linalg.norm(offsets.reshape(-1, len(parents), 3)[0, j])  # noqa: E731
     q = lambda j: _quat.unstack(G[:, j], -1)  # noqa: E731
     v = lambda x: _quat.unstack(x, -1)  # noqa: E731
-    ankles, drop = [], jnp.zeros(P.shape[:1], P.dtype)
+    T = P.shape[0]  # span ids are below T + 1: one program for any number of spans
+    ankles, drop = [], jnp.zeros((T,), P.dtype)
     for f, (e, a, k, h) in enumerate(legs):
         pe = P[:, e]
         inside = weights[:, f] >= 1.0
-        sums = jax.ops.segment_sum(jnp.where(inside[:, None], pe, 0.0), segs[:, f], num_segments=counts[f] + 1)
-        cnt = jax.ops.segment_sum(inside.astype(pe.dtype), segs[:, f], num_segments=counts[f] + 1)
+        sums = jax.ops.segment_sum(jnp.where(inside[:, None], pe, 0.0), segs[:, f], num_segments=T + 1)
+        cnt = jax.ops.segment_sum(inside.astype(pe.dtype), segs[:, f], num_segments=T + 1)
         lock = (sums / jnp.maximum(cnt, 1.0)[:, None])[segs[:, f]]  # each span's mean position
         tgt = pe + weights[:, f, None] * (lock - pe)
         ankle = _quat.stack(_quat.sub(v(tgt), _quat.rotate(q(a), v(bone(e)))), -1)
@@ -135,8 +137,8 @@ def lock_feet(motion: Motion, feet, contacts=None, *, blend: int = 6, up: int = 
     contacts = np.asarray(contacts, bool)
     if contacts.shape != (motion.num_frames, len(legs)):
         raise ValueError(f"contacts must have shape ({motion.num_frames}, {len(legs)}), got {contacts.shape}")
-    ws, segs, counts = zip(*(_weights(contacts[:, f], blend) for f in range(len(legs))))
+    ws, segs = zip(*(_weights(contacts[:, f], blend) for f in range(len(legs))))
     dtype = motion.rotations.dtype
-    R, drop = _lock(motion.skeleton.parents, legs, tuple(counts), _offsets(motion), motion.root_positions, motion.rotations,
+    R, drop = _lock(motion.skeleton.parents, legs, _offsets(motion), motion.root_positions, motion.rotations,
                     jnp.asarray(np.stack(ws, 1), dtype), jnp.asarray(np.stack(segs, 1)), up)
     return dataclasses.replace(motion, rotations=R, root_positions=motion.root_positions.at[:, up].add(-drop))

@@ -84,8 +84,7 @@ def retarget(motion: Motion, skeleton, mapping: dict, *, scale=None, solver="lm"
     P = positions(motion)
     root_q = global_rotations(motion)[:, 0]
     rel = scale * (P[:, list(src)] - P[:, :1])  # (T, E, 3) in the world's axes, about the root
-    inv = _quat.unstack(root_q, -1)
-    inv = (inv[0], -inv[1], -inv[2], -inv[3])
+    inv = _quat.conj(_quat.unstack(root_q, -1))
     local = _quat.stack(_quat.rotate(tuple(c[:, None] for c in inv), _quat.unstack(rel, -1)), -1)
     limits = list(skeleton.limits or (None,) * skeleton.num_joints)
     limits[0] = ik.Fixed()
