@@ -89,6 +89,32 @@ def cloth_table():
     return "\n".join(out)
 
 
+def substeps_table():
+    d = load("cloth_substeps")
+    out = ["| scene | dtype | max_substep_depth | converged | substeps (total / most in a step) | Newton/step | ms/step | compile (s) |",
+           "|---|---|---|---|---|---|---|---|"]
+    for r in d["rows"]:
+        out.append(f"| {r['case']} | {r['dtype']} | {r['max_substep_depth']} | {100 * r['converged_share']:.1f}% | "
+                   f"{r['substeps_total']} / {r['substeps_max']} ({r['steps']} steps) | {r['newton_per_step']:.1f} | "
+                   f"{r['ms_per_step']:.1f} | {r['compile_s']:.1f} |")
+    return "\n".join(out)
+
+
+def bdf2_table():
+    d = load("cloth_bdf2")
+    out = ["| integrator | dt | error at 1 s (m) | energy kept | Newton/step | ms per simulated s | compile (s) |",
+           "|---|---|---|---|---|---|---|"]
+    for r in d["accuracy"]:
+        out.append(f"| {r['integrator']} | 1/{round(1 / r['dt'])} | {r['error_m']:.2e} | {100 * r['energy_kept']:.1f}% | "
+                   f"{r['newton_per_step']:.2f} | {r['ms_per_sim_s']:.1f} | {r['compile_s']:.1f} |")
+    out += ["", "| scene | integrator | ms/step | Newton/step | substeps | converged | compile (s) |",
+            "|---|---|---|---|---|---|---|"]
+    for r in d["cost"]:
+        out.append(f"| {r['case']} | {r['integrator']} | {r['ms_per_step']:.1f} | {r['newton_per_step']:.2f} | "
+                   f"{r['substeps_total']} ({r['steps']} steps) | {100 * r['converged_share']:.0f}% | {r['compile_s']:.1f} |")
+    return "\n".join(out)
+
+
 def scaling_table():
     d = load("scaling")
     out = ["| forced host devices | IK M solves/s (100k targets) | IK speed-up | IK weak-scaling efficiency | "
@@ -130,7 +156,8 @@ def headline_table():
                      + [f"| {a} | {b} | `{c}.json` ({load(c)['timestamp'][:10]}) |" for a, b, c in rows])
 
 
-TABLES = {"headline": headline_table, "ik": ik_table, "stability": stability_table, "cloth": cloth_table, "scaling": scaling_table}
+TABLES = {"headline": headline_table, "ik": ik_table, "stability": stability_table, "cloth": cloth_table, "scaling": scaling_table,
+          "substeps": substeps_table, "bdf2": bdf2_table}
 _ROOT = os.path.join(os.path.dirname(RESULTS), os.pardir)
 GUIDES = (os.path.join(_ROOT, "docs", "performance.md"), os.path.join(_ROOT, "README.md"))
 _BLOCK = re.compile(r"(<!-- generated: (\w+) -->\n)(.*?)(<!-- end generated -->)", re.S)

@@ -8,7 +8,7 @@ round), so machine noise hits both alike; the paired ratio per round is ``baseli
 current time`` (above 1: the current code is faster).  The end states are compared too.
 
 Cases (float64, ``benchmarks/cloth_step.py``'s scenes): A the lab cloth (CG, Cholesky,
-explicit); B 32x32 (CG, on planes); C 32x32 k = 1e5 (two-level CG, planes and grid-block
+explicit); B 32x32 and B 128x128 (CG, on planes); C 32x32 k = 1e5 (two-level CG, planes and grid-block
 aggregates); the tablecloth mesh (CG and two-level CG: the particle layout, gathers and
 voxel aggregates; pinned at its centre and one edge); B 16x16 over a sphere (contact); ``batch_rollout`` of 4 B 16x16 scenes.
 
@@ -41,6 +41,7 @@ def cases(pkg):
     out = {}
     lab = C.lab_cloth(np.float64)
     b32 = C.grid(31, 0.2, dtype=np.float64)
+    b128 = C.grid(127, 0.2, dtype=np.float64)
     stiff = C.grid(31, 0.2, mass=1.0 / 32**2, stiffness=1e5, gravity=9.8, dtype=np.float64)
     V, T = C.read_obj(C.TABLECLOTH_OBJ)
     mesh = C.from_mesh(V, T, dtype=np.float64, pins=[0, int(np.argmax(V[:, 0]))])  # the centre and one edge
@@ -50,7 +51,8 @@ def cases(pkg):
     table = [("A lab CG", lab, cg, 1 / 60, 10), ("A lab Cholesky", lab, C.ImplicitEuler(linear_solver=C.Cholesky()),
                                                  1 / 60, 10),
              ("A lab explicit 100 substeps", lab, C.ExplicitEuler(substeps=100), 1 / 60, 10),
-             ("B 32x32 CG", b32, cg, 1 / 60, 10), ("C 32x32 k=1e5 two-level", stiff, tl, 1 / 30, 5),
+             ("B 32x32 CG", b32, cg, 1 / 60, 10), ("B 128x128 CG", b128, cg, 1 / 60, 5),
+             ("C 32x32 k=1e5 two-level", stiff, tl, 1 / 30, 5),
              ("tablecloth mesh CG", mesh, cg, 1 / 60, 10), ("tablecloth mesh two-level", mesh, tl, 1 / 60, 10),
              ("B 16x16 on a sphere", sphere, cg, 1 / 60, 10)]
     for name, c, integ, dt, n in table:

@@ -82,7 +82,7 @@ def test_buckling_steps_of_scene_c_64_converge_at_a_stationary_point():
     equations (checked in numpy, independently of the solver's own gradient)."""
     c = stiff_grid(63)
     h = 1 / 30
-    integ = C.ImplicitEuler(linear_solver=C.CG(C.TwoLevel()), trace=True)
+    integ = C.ImplicitEuler(linear_solver=C.CG(C.TwoLevel()), trace=True, max_substep_depth=0)  # one Newton solve a step
     states, info = jax.jit(lambda s: C.rollout(c, s, h, 10, integ))(C.State.at_rest(c))
     iters = np.asarray(info.newton_iters)
     assert np.all(np.asarray(info.converged)) and iters.max() <= 12, iters
@@ -108,7 +108,7 @@ def test_a_stationary_phase_converges_where_its_first_step_raises_the_gradient(m
     h = 1 / 30
     data = np.load(os.path.join(os.path.dirname(__file__), "data", "c32_k1e5_hard_step.npz"))
     state = C.State(data["x"], data["v"])
-    integ = C.ImplicitEuler(linear_solver=C.CG(C.TwoLevel()), trace=True)
+    integ = C.ImplicitEuler(linear_solver=C.CG(C.TwoLevel()), trace=True, max_substep_depth=0)  # one Newton solve a step
     new, info = C.step(c, state, h, integ, guess=data["guess"])
     n = int(info.newton_iters)
     assert bool(info.converged) and n < 20, (n, float(info.rel_grad))

@@ -64,18 +64,19 @@ def test_float32_stiff_cloth_is_right_or_flagged(stiffness):
 @pytest.mark.slow
 def test_converged_means_small_relative_gradient():
     """`converged` is the gradient test, whatever stopped the loop: one Newton iteration
-    on a stiff scene stops on the cap and must not claim convergence."""
+    on a stiff scene stops on the cap and must not claim convergence (without substeps,
+    which would retry it as halves: ``tests/test_cloth_substeps.py``)."""
     c = C.replace(C.grid(6, 0.2, dtype=np.float64), stiffness=1e5)
     x0 = c.rest + 0.01 * jax.random.normal(jax.random.PRNGKey(0), c.rest.shape, c.dtype)
     x0 = jnp.where(c.pinned[:, None], c.rest, x0)
     s0 = C.State(x0, jnp.zeros_like(x0))
     rtol = C.ImplicitEuler().resolved_rtol(np.float64)
-    _, one = C.step(c, s0, 1 / 30, C.ImplicitEuler(newton_iters=1))
+    _, one = C.step(c, s0, 1 / 30, C.ImplicitEuler(newton_iters=1, max_substep_depth=0))
     _, full = C.step(c, s0, 1 / 30, C.ImplicitEuler(newton_iters=50))
     assert not bool(one.converged) and float(one.rel_grad) > rtol
     assert bool(full.converged) and float(full.rel_grad) <= rtol
     # and the reported relative gradient is the one of the returned state
-    s, info = C.step(c, s0, 1 / 30, C.ImplicitEuler(newton_iters=3))
+    s, info = C.step(c, s0, 1 / 30, C.ImplicitEuler(newton_iters=3, max_substep_depth=0))
     p = _problem.StepProblem.build(c, s0.x, s0.v, jnp.asarray(1 / 30))
     w = (s.x - s0.x) - p.prediction  # the step's unknown: the deviation from inertia and gravity
     g = jax.grad(_problem.incremental_potential)(w, p) * p.free
@@ -235,7 +236,8 @@ def test_stiff_light_cloth_converges_every_step(dtype):
     _, infos = C.rollout(c, s0, 1 / 30, 20, C.ImplicitEuler(linear_solver=C.CG()))
     assert bool(jnp.all(infos.converged)) and int(jnp.max(infos.newton_iters)) <= 10
     if dtype == np.float64:
-        _, clamped = C.rollout(c, s0, 1 / 30, 20, C.ImplicitEuler(linear_solver=C.CG(), project_psd=True, extrapolate=False))
+        _, clamped = C.rollout(c, s0, 1 / 30, 20, C.ImplicitEuler(linear_solver=C.CG(), project_psd=True, extrapolate=False,
+                                                              max_substep_depth=0))
         assert not bool(jnp.all(clamped.converged)) and int(jnp.max(clamped.newton_iters)) == 20
 
 

@@ -19,7 +19,8 @@ from ._model.colliders import SCENE_FIELDS, collider_kinds, count_inside, descri
 from ._integrators import ExplicitEuler, ImplicitEuler
 from ._layout import batch_layout
 from ._model.scene import Cloth, State, frozen_ids
-from ._step import _rollout, check_inputs, check_resume
+from ._checks import check_inputs, check_resume
+from ._step import _rollout
 
 
 def stack_scenes(scenes: Sequence[Cloth]) -> Cloth:

@@ -11,12 +11,15 @@ import numpy as np
 from .._validate import check_bool, check_int, check_real
 from ._linear import AUTO_DENSE_MAX_PARTICLES, CG, Auto, Cholesky, Jacobi, TwoLevel, check_linear_solver, resolve
 
-__all__ = ["AUTO_DENSE_MAX_PARTICLES", "DEFAULT_RTOL", "ExplicitEuler", "ImplicitEuler"]
+__all__ = ["AUTO_DENSE_MAX_PARTICLES", "BDF2", "DEFAULT_RTOL", "MAX_SUBSTEP_DEPTH", "ExplicitEuler", "ImplicitEuler"]
 
 #: Default ``ImplicitEuler.rtol`` per dtype: the relative gradient a converged step
 #: reaches with margin (measured on the lab cloth, the stiff scenes and the extreme
 #: cases of the test suite; see the README's float32 section).
 DEFAULT_RTOL = {np.dtype(np.float32): 1e-4, np.dtype(np.float64): 1e-9}
+
+#: The largest ``ImplicitEuler.max_substep_depth``: ``2^10`` substeps per step.
+MAX_SUBSTEP_DEPTH = 10
 
 
 @dataclasses.dataclass(frozen=True)
@@ -96,6 +99,15 @@ class ImplicitEuler:
         iterations, else ``1``.  ``False`` (``0``):
         the lab's start.  Scenes with colliders always start from ``x^n`` (or its push-out
         off a moving collider).  ``step`` takes the same start as ``guess``.
+      max_substep_depth: adaptive substeps (``_implicit.substeps``).  A step whose Newton
+        solve does not meet the gradient test within ``newton_iters`` (or fails) is
+        retried as two half steps, each of which may be halved again, down to
+        ``h / 2^max_substep_depth`` (default 4: up to 16 substeps); an attempt at that
+        depth is kept if it could be taken, converged or not.  ``StepInfo.substeps``
+        counts the substeps a step took, and ``converged`` means every one converged.
+        Inside the compiled step (a bounded ``lax.while_loop``); a step that converges
+        at once costs what it did without.  ``0``: no substeps (a step that does not
+        converge is returned unconverged).
       solver, preconditioner, cg_tol, cg_forcing, cg_max_iters: the earlier spelling of
         ``linear_solver`` (``solver="dense" | "cg" | "auto"``, ``preconditioner="jacobi" |
         "two_level"``), kept for one release: a ``DeprecationWarning``, then the same
@@ -111,6 +123,7 @@ class ImplicitEuler:
     max_backtracks: int = 30
     trace: bool = False
     extrapolate: bool | int | str = "auto"
+    max_substep_depth: int = 4
     solver: str | None = dataclasses.field(default=None, repr=False)
     preconditioner: str | None = dataclasses.field(default=None, repr=False)
     cg_tol: float | None = dataclasses.field(default=None, repr=False)
@@ -124,6 +137,10 @@ class ImplicitEuler:
             set_(name, None)
         set_("newton_iters", check_int("newton_iters", self.newton_iters, 1))
         set_("max_backtracks", check_int("max_backtracks", self.max_backtracks, 0))
+        set_("max_substep_depth", check_int("max_substep_depth", self.max_substep_depth, 0))
+        if self.max_substep_depth > MAX_SUBSTEP_DEPTH:
+            raise ValueError(f"max_substep_depth must be <= {MAX_SUBSTEP_DEPTH} (2^depth substeps), "
+                             f"got {self.max_substep_depth}")
         if self.tol is not None:
             set_("tol", check_real("tol", self.tol, minimum=0.0))
         if self.rtol is not None:
@@ -147,6 +164,24 @@ class ImplicitEuler:
     def linear(self, n_particles: int) -> Cholesky | CG:
         """The linear solver for a cloth of ``n_particles`` (an ``Auto`` resolved)."""
         return resolve(self.linear_solver, n_particles)
+
+
+@dataclasses.dataclass(frozen=True)
+class BDF2(ImplicitEuler):
+    """The two-step backward differentiation formula, by the same Newton solve.
+
+    ``x^{n+1} - a x^n + b x^{n-1} = beta h v^{n+1}`` and the same for the velocities
+    with the forces, with variable-step coefficients from the ratio to the step before
+    (``_implicit.bdf2``): second order in ``h`` where backward Euler is first, so much
+    less numerical damping.  Each step is backward Euler's problem from a shifted state
+    over ``beta h``, so every ``ImplicitEuler`` option (the linear solve, the Newton
+    settings, the extrapolated start, adaptive substeps, the implicit derivative) means
+    the same here.  A rollout's first step, and a substep more than
+    ``_implicit.bdf2.MAX_RATIO`` times longer than the one before, is a backward-Euler
+    step; ``step(..., previous=)`` gives it the state one step before.  ``rollout(resume=)``
+    does not carry that memory yet: a resumed rollout's first step is backward Euler.
+    Colliders are not supported yet (the shifted state may lie inside one): ``ValueError``.
+    """
 
 
 _OLD = ("solver", "preconditioner", "cg_tol", "cg_forcing", "cg_max_iters")

@@ -30,6 +30,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 from jax import lax
+from .linsolve import cho_solve_lower, lower_cholesky
 
 
 #: A float64 coarse matrix is factored in float32, shifted where needed so that an upper
@@ -52,15 +53,16 @@ def cholesky(Ac, lam_min):
     in float64.  On XLA:CPU the float64 factor cost more than its LAPACK call (copies, the
     failure check's select): C 32x32 k = 1e5 about 4 ms of 30 per step (README,
     "Two-level preconditioner").  A float64 fallback chosen at run time instead of the
-    shift (``lax.cond`` or a ``while_loop``) hung ``batch_rollout`` under ``vmap`` on XLA:CPU.
+    shift (``lax.cond`` or a ``while_loop``) hung ``batch_rollout`` under ``vmap`` on
+    XLA:CPU: two batched LAPACK calls at once (``linsolve.dense_solve``).
     """
     if Ac.dtype != jnp.float64:
-        return lax.linalg.cholesky(Ac, symmetrize_input=False), True
+        return lower_cholesky(Ac), True
     eps = jnp.finfo(jnp.float32).eps
     top = jnp.max(jnp.sum(jnp.abs(Ac), axis=1))  # >= the largest eigenvalue (Gershgorin)
     shift = jnp.maximum(top * eps / FLOAT32_FACTOR_LIMIT - lam_min, 0.0)  # 0 unless very stiff
     n = Ac.shape[0]
-    L = lax.linalg.cholesky((Ac + shift * jnp.eye(n, dtype=Ac.dtype)).astype(jnp.float32), symmetrize_input=False)
+    L = lower_cholesky((Ac + shift * jnp.eye(n, dtype=Ac.dtype)).astype(jnp.float32))
     return L.astype(Ac.dtype), True
 
 
@@ -106,7 +108,7 @@ def coarse_correction(ids, count: int, factor, free):
 
     def coarse(r):
         rc = jax.ops.segment_sum(r * free, ids, count).reshape(-1)
-        zc = jax.scipy.linalg.cho_solve(factor, rc).reshape(count, 3)
+        zc = cho_solve_lower(factor[0], rc).reshape(count, 3)
         return zc[ids] * free
 
     return coarse

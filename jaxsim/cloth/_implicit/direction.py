@@ -12,7 +12,7 @@ from jax import lax
 
 from ..._dataclass import pytree_dataclass
 from .._model import energy as en
-from .linsolve import dense_solve, pcg
+from .linsolve import dense_solve, lu_solve, pcg
 from .setup import NewtonSetup
 
 #: ``project_psd="auto"``: when the exact Hessian is not positive definite, the direction is
@@ -82,7 +82,7 @@ def dense(sv: NewtonSetup, b, H, indefinite=False) -> Direction:
     columns replaced by the identity; Cholesky of an indefinite ``H`` gives non-finite values."""
     f3 = sv.free3
     H = H * f3[:, None] * f3[None, :] + jnp.diag(1.0 - f3)
-    dx = jnp.linalg.solve(H, b.reshape(-1)) if indefinite else dense_solve(H, b.reshape(-1))
+    dx = lu_solve(H, b.reshape(-1)) if indefinite else dense_solve(H, b.reshape(-1))
     res = _safe_ratio(jnp.linalg.norm(H @ dx - b.reshape(-1)), jnp.linalg.norm(b))
     return Direction(dx.reshape(sv.N, 3), jnp.int32(0), res, ~jnp.all(jnp.isfinite(dx)), jnp.int32(0))
 

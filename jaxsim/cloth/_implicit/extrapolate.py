@@ -82,10 +82,20 @@ class History:
         """``(N, 3)`` the deviation ``w`` of the extrapolated positions
         ``x^n + h (v^n + dv + [dv - d_prev])`` with ``dv = v^n - v^{n-1}``, without rounding
         ``x`` (the bracket where :attr:`jerk`)."""
-        dv = p.v0 - self.v_prev
+        return p.h * self.change(p.v0) - p.h**2 * p.cloth.gravity
+
+    def change(self, v) -> jax.Array:
+        """``(N, 3)`` the extrapolated velocity's change from ``v = v^n``: ``dv`` (and the
+        jerk term ``dv - d_prev`` where :attr:`jerk`)."""
+        dv = v - self.v_prev
         if self.d_prev is not None:
             dv = dv + jnp.where(self.jerk, dv - self.d_prev, 0.0)
-        return p.h * dv - p.h**2 * p.cloth.gravity
+        return dv
+
+    def start_at(self, p, x, v, h) -> jax.Array:
+        """:meth:`start` for a problem ``p`` that is not built on the step's own ``(x, v, h)``
+        (BDF2's, ``_implicit.bdf2``): the deviation of the same extrapolated positions."""
+        return (x - p.x0) + (h * v - p.h * p.v0) + h * self.change(v) - p.h**2 * p.cloth.gravity
 
     def advance(self, v, info, mode) -> "History":
         """The history for the step after one that started at velocity ``v (N, 3)`` and

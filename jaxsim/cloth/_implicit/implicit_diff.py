@@ -16,7 +16,7 @@ from jax import lax
 
 from . import contact as ct
 from . import problem as pr
-from .linsolve import pcg
+from .linsolve import lu_solve, pcg
 from .hessian import block_jacobi
 from .._linear import Cholesky
 
@@ -58,7 +58,7 @@ def _solution_jvp(integ, primals, tangents):
         def solve(mv, b):
             eye = jnp.eye(3 * N, dtype=b.dtype).reshape(3 * N, N, 3)
             A = jax.vmap(mv)(eye).reshape(3 * N, 3 * N)
-            return jnp.linalg.solve(A, b.reshape(-1)).reshape(N, 3)
+            return lu_solve(A, b.reshape(-1)).reshape(N, 3)
     else:
         C = None if p.contact is None else ct.blocks(p.displacement(w_star), p.x0, p.cloth, p.contact, p.free)
         Minv = block_jacobi(p, pr.blocks(w_star, p, project_psd=True), C)

@@ -7,10 +7,40 @@ import jax.numpy as jnp
 from jax import lax
 
 
+@jax.custom_batching.sequential_vmap
 def dense_solve(H, b):
-    """Solve ``H x = b`` with Cholesky (``H`` SPD, ``(n, n)``); NaN if ``H`` is not SPD."""
+    """Solve ``H x = b`` with Cholesky (``H`` SPD, ``(n, n)``); NaN if ``H`` is not SPD.
+
+    Batched (under ``vmap``) one matrix after another, as :func:`lu_solve`: jaxlib 0.10's
+    batched LAPACK kernels split their batch over XLA:CPU's intra-op thread pool and
+    block until it is done, so two of them that the program runs at once (the
+    alternatives of a batched ``lax.cond``, which ``vmap`` evaluates both of) can take
+    every pool thread and wait for each other forever (``docs/notebook.md``, "A batched
+    rollout that never returned").
+    """
     c = jax.scipy.linalg.cho_factor(H, lower=True)
     return jax.scipy.linalg.cho_solve(c, b)
+
+
+@jax.custom_batching.sequential_vmap
+def lower_cholesky(A):
+    """The lower Cholesky factor of ``A (n, n)`` (NaN if not SPD); batched one matrix
+    after another (:func:`dense_solve`)."""
+    return lax.linalg.cholesky(A, symmetrize_input=False)
+
+
+@jax.custom_batching.sequential_vmap
+def cho_solve_lower(L, b):
+    """``A^-1 b`` from the lower Cholesky factor ``L (n, n)`` of ``A``; batched one
+    matrix after another (:func:`dense_solve`)."""
+    return jax.scipy.linalg.cho_solve((L, True), b)
+
+
+@jax.custom_batching.sequential_vmap
+def lu_solve(A, b):
+    """Solve ``A x = b`` by LU with partial pivoting (``A`` nonsingular, ``(n, n)``);
+    batched one matrix after another (:func:`dense_solve`)."""
+    return jnp.linalg.solve(A, b)
 
 
 def pcg(apply_A, b, x0, apply_Minv, *, tol, max_iters: int, indefinite: bool = False):

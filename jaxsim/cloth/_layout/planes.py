@@ -13,12 +13,12 @@ once per solve, and forms the blocks in planes once per iteration.
 
 from __future__ import annotations
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
 from .aggregates import block_grid
 from .stencil import Stencil
+from .._implicit.linsolve import cho_solve_lower
 
 
 def to_planes(st: Stencil, v):
@@ -179,7 +179,7 @@ def coarse_correction(st: Stencil, b: int, factor, free):
 
     def coarse(r):
         rc = block_reduce(st, b, r * free).transpose(1, 2, 0).reshape(-1)
-        zc = jax.scipy.linalg.cho_solve(factor, rc).reshape(nI, nJ, 3).transpose(2, 0, 1)
+        zc = cho_solve_lower(factor[0], rc).reshape(nI, nJ, 3).transpose(2, 0, 1)
         z = jnp.broadcast_to(zc[:, :, None, :, None], (3, nI, b, nJ, b)).reshape(3, nI * b, nJ * b)
         return z[:, :st.rows, :st.cols] * free
 

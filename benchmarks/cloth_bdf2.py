@@ -1,0 +1,141 @@
+"""BDF2 against backward Euler: error against run time, energy kept, cost per step.
+
+Accuracy: an undamped 16x16 cloth, 1.5 m across, 1 kg, k = 50, pinned at one corner,
+released horizontal under g = 9.8 and swinging for 1 s, float64, default settings.  Each
+integrator runs at dt = 1/30, 1/60, 1/120 and 1/240; the reference is BDF2 at dt = 1/1920.
+Per row: the largest position error at 1 s against the reference (m), the energy left at
+1 s as a share of what the reference keeps (total energy above the lowest it reaches),
+Newton iterations per step, and ms of run time per simulated second (warm, compile
+apart): the error-against-time front.
+
+Cost: scenes A (the lab cloth, CG and Cholesky) and B (32x32 and 128x128 grids, CG) of
+``cloth_ab.py``, and scene C 32x32 at k = 1e3 (no damping, dt = 1/30), float64, from a
+moving state 10 backward-Euler steps in; backward Euler and BDF2 with the same settings
+alternated in one process, median of rounds and the median paired ratio.
+
+Run: ``python benchmarks/cloth_bdf2.py [--quick]``; writes ``benchmarks/results/cloth_bdf2.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import sys
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from _common import time_call, write  # noqa: E402
+
+import jaxsim  # noqa: E402
+from jaxsim import cloth as C  # noqa: E402
+
+INTEGRATORS = {"backward Euler": C.ImplicitEuler(), "BDF2": C.BDF2()}
+
+
+def swing(n=16, span=1.5):
+    return C.grid(n - 1, span / (n - 1), mass=1.0 / n**2, stiffness=50.0, damping=0.0, gravity=9.8, pins=[0],
+                  dtype=np.float64)
+
+
+def energies(cloth, states):
+    return np.asarray(jax.vmap(lambda x, v: C.total_energy(cloth, x, v))(states.x, states.v))
+
+
+def accuracy(dts, t_end=1.0, ref_dt=1 / 1920):
+    cloth = swing()
+    s0 = C.State.at_rest(cloth)
+    ref_states, ref_info = C.rollout(cloth, s0, ref_dt, int(round(t_end / ref_dt)), C.BDF2())
+    e_ref = energies(cloth, ref_states)
+    e0 = float(C.total_energy(cloth, s0.x, s0.v))
+    low = float(e_ref.min())  # the lowest total energy of the reference: the scale of the swing
+    ref_x = np.asarray(ref_states.x[-1])
+    print(f"reference: BDF2 dt=1/{round(1 / ref_dt)}, converged {100 * float(np.mean(ref_info.converged)):.0f}%, "
+          f"energy drift {e_ref[-1] - e0:.2e} J of a swing of {e0 - low:.3f} J", flush=True)
+    rows = []
+    for dt in dts:
+        n = int(round(t_end / dt))
+        for name, integ in INTEGRATORS.items():
+            f = jax.jit(lambda s, integ=integ, dt=dt, n=n: C.rollout(cloth, s, dt, n, integ))
+            t = time_call(f, s0, repeats=3)
+            states, info = f(s0)
+            e = energies(cloth, states)
+            row = {"integrator": name, "dt": dt, "steps": n, "error_m": float(np.abs(np.asarray(states.x[-1]) - ref_x).max()),
+                   "energy_kept": float((e[-1] - low) / (e_ref[-1] - low)),
+                   "energy_lost_J": float(e0 - e[-1]), "converged_share": float(np.mean(info.converged)),
+                   "newton_per_step": float(np.mean(info.newton_iters)), "ms_per_sim_s": 1e3 * t["run_s"] / t_end,
+                   "compile_s": t["compile_s"]}
+            print(f"{name:14s} dt=1/{round(1 / dt)}: error {row['error_m']:.2e} m, energy kept "
+                  f"{100 * row['energy_kept']:.1f}%, Newton {row['newton_per_step']:.2f}/step, "
+                  f"{row['ms_per_sim_s']:.1f} ms per simulated s", flush=True)
+            rows.append(row)
+    return rows, {"e0_J": e0, "swing_J": e0 - low, "ref_drift_J": float(e_ref[-1] - e0),
+                  "ref_converged_share": float(np.mean(ref_info.converged))}
+
+
+def cost_cases(quick):
+    """``(name, scene, linear solver, dt, steps)``: scenes A and B of ``cloth_ab.py`` and C."""
+    out = [("A lab CG", C.lab_cloth(np.float64), C.CG(), 1 / 60, 10),
+           ("A lab Cholesky", C.lab_cloth(np.float64), C.Cholesky(), 1 / 60, 10),
+           ("B 32x32 CG", C.grid(31, 0.2, dtype=np.float64), C.CG(), 1 / 60, 10)]
+    if not quick:
+        out.append(("B 128x128 CG", C.grid(127, 0.2, dtype=np.float64), C.CG(), 1 / 60, 5))
+    out.append(("C 32x32 k=1e3", C.grid(31, 0.2, mass=1.0 / 32**2, stiffness=1e3, gravity=9.8, damping=0.0,
+                                        dtype=np.float64), C.Auto(), 1 / 30, 20))
+    return out
+
+
+def cost(quick, rounds):
+    """ms per step of backward Euler and BDF2 with the same settings, alternated in one
+    process, from a moving state (10 backward-Euler steps in)."""
+    rows = []
+    for case, cloth, lin, dt, steps in cost_cases(quick):
+        integs = {"backward Euler": C.ImplicitEuler(linear_solver=lin), "BDF2": C.BDF2(linear_solver=lin)}
+        warm, _ = C.rollout(cloth, C.State.at_rest(cloth), dt, 10, integs["backward Euler"])
+        s0 = C.State(warm.x[-1], warm.v[-1])
+        fns = {name: jax.jit(lambda s, integ=integ: C.rollout(cloth, s, dt, steps, integ)) for name, integ in integs.items()}
+        compile_s = {name: time_call(f, s0, repeats=1)["compile_s"] for name, f in fns.items()}
+        runs = {name: [] for name in fns}
+        for _ in range(rounds):  # alternated, so both see the same machine load
+            for name, f in fns.items():
+                runs[name].append(time_call(f, s0, repeats=1)["run_s"])
+        ratios = [b / e for b, e in zip(runs["BDF2"], runs["backward Euler"])]
+        for name, f in fns.items():
+            _, info = f(s0)
+            row = {"case": case, "integrator": name, "steps": steps, "dt": dt,
+                   "ms_per_step": 1e3 * statistics.median(runs[name]) / steps,
+                   "newton_per_step": float(np.mean(info.newton_iters)),
+                   "substeps_total": int(jnp.sum(info.substeps)), "converged_share": float(np.mean(info.converged)),
+                   "compile_s": compile_s[name]}
+            if name == "BDF2":
+                row["paired_ratio_median"] = statistics.median(ratios)
+            print(f"{case} {name:14s}: {row['ms_per_step']:.2f} ms/step, Newton {row['newton_per_step']:.2f}/step, "
+                  f"substeps {row['substeps_total']}, converged {100 * row['converged_share']:.0f}%"
+                  + (f", BDF2/BE paired {row['paired_ratio_median']:.2f}" if name == "BDF2" else ""), flush=True)
+            rows.append(row)
+    return rows
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--quick", action="store_true", help="fewer step sizes, no 128x128")
+    ap.add_argument("--rounds", type=int, default=5)
+    args = ap.parse_args()
+    jaxsim.retain_host_memory()
+    dts = (1 / 30, 1 / 60) if args.quick else (1 / 30, 1 / 60, 1 / 120, 1 / 240)
+    acc, ref = accuracy(dts)
+    write("cloth_bdf2", {"accuracy": acc, "reference": ref, "cost": cost(args.quick, args.rounds),
+                         "swing": "16x16 grid 1.5 m across, 1 kg, k 50, no damping, pinned at one corner, released "
+                                  "horizontal, g 9.8, 1 s, float64; reference BDF2 dt 1/1920",
+                         "cost_scenes": "A: the lab cloth; B: grid(n-1, 0.2) defaults; C: 32x32, 1 kg, k 1e3, g 9.8, "
+                                        "no damping; float64, from 10 backward-Euler steps in; BDF2 and backward "
+                                        "Euler alternated, median of rounds"})
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,131 @@
+"""Boundary validation of ``step``, ``rollout`` and ``batch_rollout`` inputs, and the
+same checks as a traced flag for inputs only known inside ``jit``."""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._dataclass import is_concrete
+from .._validate import check_finite, check_real, check_shape
+from ._info import StepInfo
+from ._integrators import BDF2, ExplicitEuler, ImplicitEuler
+from ._model.colliders import COLLIDERS, collider_kinds, count_inside, describe_inside
+from ._model.scene import Cloth, State
+
+
+def valid_inputs(cloth: Cloth, dt):
+    """The boundary checks as a traced flag (for inputs only known inside ``jit``)."""
+    leaves = (cloth.rest, cloth.rest_length, cloth.stiffness, cloth.mass, cloth.gravity, dt)
+    finite = [jnp.all(jnp.isfinite(a)) for a in leaves]
+    positive = [dt > 0, jnp.all(cloth.mass > 0), jnp.all(cloth.rest_length > 0), jnp.all(cloth.stiffness >= 0)]
+    if cloth.damped:  # an undamped scene's compiled step never reads its damping leaf
+        finite.append(jnp.isfinite(cloth.damping))
+        positive.append(cloth.damping >= 0)
+    return functools.reduce(jnp.logical_and, finite + positive)
+
+
+def check_inputs(cloth: Cloth, state: State, dt, integrator) -> State:
+    """Boundary validation (raises ``ValueError``/``TypeError`` before any tracing).
+
+    Returns the state cast to the scene's dtype: the scene fixes the precision of the
+    step, so a float64 state on a float32 scene is rounded and a float16 or integer
+    state is widened.
+    """
+    if not isinstance(cloth, Cloth):
+        raise TypeError(f"cloth must be a jaxsim.cloth.Cloth, got {type(cloth).__name__}")
+    if not isinstance(state, State):
+        raise TypeError(f"state must be a jaxsim.cloth.State, got {type(state).__name__}")
+    if not isinstance(integrator, (ExplicitEuler, ImplicitEuler)):
+        raise TypeError(f"integrator must be ExplicitEuler or ImplicitEuler, got {type(integrator).__name__}")
+    if cloth.rest.ndim != 2:
+        raise ValueError("this scene is batched (from stack_scenes): use batch_rollout")
+    if cloth.colliders and isinstance(integrator, ExplicitEuler):
+        raise ValueError("colliders need ImplicitEuler: contact is a barrier in its incremental potential")
+    if cloth.colliders and isinstance(integrator, BDF2):
+        raise ValueError("BDF2 does not support colliders yet (its shifted start x^n + b (x^n - x^{n-1}) can lie "
+                         "inside one): use ImplicitEuler")
+    out = [particle_array(name, a, cloth) for name, a in (("state.x", state.x), ("state.v", state.v))]
+    if cloth.colliders and is_concrete(state.x) and is_concrete(*jax.tree_util.tree_leaves(cloth.colliders)):
+        inside = count_inside(cloth.colliders, out[0], ~np.asarray(cloth.pinned))
+        if inside:
+            raise ValueError(describe_inside(inside, "state"))
+    if is_concrete(dt):
+        if np.ndim(dt) != 0:
+            raise ValueError(f"dt must be a scalar, got shape {np.shape(dt)}")
+        check_real("dt", dt, minimum=0.0, strict=True)
+    return State(*out)
+
+
+def particle_array(name: str, a, cloth: Cloth) -> jax.Array:
+    """``a`` checked to be ``(N, 3)`` real and finite (finite where concrete), in the scene's dtype."""
+    N = cloth.num_particles
+    if is_concrete(a):
+        a = check_finite(name, check_shape(name, a, (N, 3)))
+        if not (np.issubdtype(a.dtype, np.floating) or np.issubdtype(a.dtype, np.integer)):
+            raise ValueError(f"{name} must hold real numbers, got dtype {a.dtype}")
+    elif tuple(a.shape) != (N, 3):
+        raise ValueError(f"{name} must have shape ({N}, 3), got {tuple(a.shape)}")
+    return jnp.asarray(a, cloth.dtype)
+
+
+def check_path(cloth: Cloth, colliders, n_steps: int):
+    """A kinematic collider path: ``cloth.colliders``' structure with a leading ``(T,)`` axis."""
+    if colliders is None:
+        return None
+    if not cloth.colliders:
+        raise ValueError("a collider path needs a scene with colliders (cloth.replace(scene, colliders=...))")
+    if isinstance(colliders, COLLIDERS):
+        colliders = (colliders,)  # one collider, as the scene accepts it
+    if not isinstance(colliders, (tuple, list)) or not all(isinstance(c, COLLIDERS) for c in colliders):
+        raise ValueError("colliders (the path) must be a tuple of cloth.Plane, cloth.Sphere or cloth.Capsule like "
+                         f"the scene's, with a leading (n_steps,) axis on every leaf; got {colliders!r:.200}")
+    if collider_kinds(colliders) != collider_kinds(cloth.colliders):
+        raise ValueError(f"colliders (the path) are {collider_kinds(colliders)}, the scene's are "
+                         f"{collider_kinds(cloth.colliders)}: a path needs the same kinds, order and friction on/off "
+                         "flags (a path with friction needs a scene collider with friction, and vice versa)")
+    want = jax.tree_util.tree_structure(cloth.colliders)
+    got = jax.tree_util.tree_structure(tuple(colliders))
+    if got != want:
+        raise ValueError("colliders (the path) must have the structure of the scene's colliders, with the same "
+                         f"kinds and friction on/off flags: expected {want}, got {got}")
+    leaves = []
+    for a, ref in zip(jax.tree_util.tree_leaves(tuple(colliders)), jax.tree_util.tree_leaves(cloth.colliders)):
+        shape = (n_steps,) + tuple(jnp.shape(ref))
+        if tuple(jnp.shape(a)) != shape:
+            raise ValueError(f"every leaf of the collider path needs shape {shape} (n_steps first), got {jnp.shape(a)}")
+        if is_concrete(a):
+            check_finite("collider path", a)
+        leaves.append(jnp.asarray(a, cloth.dtype))
+    return jax.tree_util.tree_unflatten(want, leaves)
+
+
+def check_resume(cloth: Cloth, resume, batch: int | None = None):
+    """``(v (min(T, 3), N, 3), converged (), newton_iters ())`` of a previous rollout's
+    ``(states, infos)``: the last velocities, all that ``History.before`` reads, so the
+    compiled rollout does not depend on the previous one's length.  ``batch``: ``B``, a
+    previous ``batch_rollout``'s outputs (every shape with a leading ``(B,)`` axis)."""
+    if resume is None:
+        return None
+    what = "batch_rollout" if batch else "rollout"
+    if not (isinstance(resume, tuple) and len(resume) == 2 and isinstance(resume[0], State)
+            and isinstance(resume[1], StepInfo)):
+        raise TypeError(f"resume must be a previous {what}'s (states, infos)")
+    states, infos = resume
+    v = jnp.asarray(states.v)
+    lead = () if batch is None else (batch,)
+    k = len(lead)
+    N = cloth.rest.shape[-2]
+    if v.ndim != 3 + k or v.shape[:k] != lead or v.shape[k + 1:] != (N, 3) or v.shape[k] < 1:
+        want = ", ".join(map(str, lead + ("T", N, 3)))
+        raise ValueError(f"resume's states must have velocities of shape ({want}) (a {what}'s), got {v.shape}")
+    T = v.shape[k]
+    if jnp.shape(infos.converged) != lead + (T,) or jnp.shape(infos.newton_iters) != lead + (T,):
+        raise ValueError(f"resume's infos must have a leading {lead + (T,)} axis like its states")
+    if is_concrete(v):
+        check_finite("resume's states.v", v)
+    return (v[..., -3:, :, :].astype(cloth.dtype), jnp.asarray(infos.converged[..., -1]),
+            jnp.asarray(infos.newton_iters[..., -1]))

@@ -1,0 +1,228 @@
+"""Adaptive substeps: a step whose Newton solve does not converge is retried as two halves.
+
+``ImplicitEuler(max_substep_depth=D)``.  The step ``[0, h]`` is walked in units of
+``h / 2^D``.  An attempt covers ``[pos, pos + 2^(D - level))`` from the state reached at
+``pos``; it is accepted when Newton converged (or, at ``level = D``, when it was at least
+taken), else it is retried at ``level + 1``.  After an accepted attempt the next one is
+the pending right half of the recursion, whose size is the lowest set bit of ``pos``:
+``level = D - ctz(pos)``.  So recursive bisection runs as one bounded ``lax.while_loop``
+(at most ``2^(D+1) - 1`` attempts), with the stack of pending intervals held in ``pos``.
+
+Newton runs on ``stop_gradient`` data (its derivatives come from the implicit function
+theorem, ``implicit_diff``).  The accepted deviations ``w_k`` are recorded, and
+:func:`replay` rebuilds each accepted substep's problem from the differentiable inputs
+and applies ``implicit_diff.solution`` to it, in a ``lax.scan`` over ``2^D`` slots whose
+inactive slots are skipped by a ``lax.cond``: a step that converged at once computes what
+the plain step does.  Each slot is rematerialised in reverse mode, so the backward pass
+keeps the slot's state, not its linearisation.
+
+Each substep after the first starts Newton from the constant-acceleration extrapolation
+``x + h_k v + h_k^2 a`` with ``a`` the last accepted substep's ``(v_new - v) / h``
+(the step's own extrapolated start gives the first one's), where that lowers the
+incremental potential.  Moving colliders are interpolated linearly between the step's
+start and end (a plane's normal renormalised).  BDF2 (``_implicit.bdf2``) carries its
+memory through the substeps: each substep's coefficients come from its ratio to the
+substep before it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+from jax import lax
+
+from ..._dataclass import pytree_dataclass
+from .._explicit import bounded
+from .._model.colliders import Plane
+from . import bdf2
+from . import problem as pr
+from .implicit_diff import solution
+from .newton import newton
+from .trace import NewtonTrace
+
+
+def between(prev, cur, t):
+    """Colliders a fraction ``t`` (``()``) of the way from ``prev`` to ``cur`` (tuples of one structure)."""
+    out = jax.tree_util.tree_map(lambda a, b: a + t * (b - a), prev, cur)
+    return tuple(dataclasses.replace(c, normal=c.normal / jnp.linalg.norm(c.normal)) if isinstance(c, Plane) else c
+                 for c in out)
+
+
+def substep_scene(cloth, prev, pos, size, D):
+    """``(cloth, prev)`` for the substep ``[pos, pos + size)`` (units of ``h / 2^D``): the
+    scene with the colliders at its end, and those at its start (``None``: static)."""
+    if prev is None:
+        return cloth, None
+    unit = 1.0 / 2**D
+    c0 = between(prev, cloth.colliders, pos * unit)
+    c1 = between(prev, cloth.colliders, (pos + size) * unit)
+    return dataclasses.replace(cloth, colliders=c1), c0
+
+
+def advance(p: pr.StepProblem, w):
+    """``(x, v)`` at the end of the step ``p`` with deviation ``w (N, 3)``; pins stay put."""
+    free = p.free > 0
+    return p.x0 + jnp.where(free, p.displacement(w), 0.0), jnp.where(free, p.velocity(w), 0.0)
+
+
+@pytree_dataclass
+class Totals:
+    """The step's diagnostics over its attempts (``StepInfo``'s fields).
+
+    ``newton_iters``, ``cg_iters`` and ``backtracks`` are summed over every attempt,
+    including those retried as halves; ``rel_grad``, ``grad_norm`` and ``cond_bound`` are
+    the largest over the accepted substeps; ``step_size``, ``residual`` and ``trace`` are the
+    last attempt's; ``converged``: every accepted substep converged.
+    """
+
+    newton_iters: jax.Array
+    cg_iters: jax.Array
+    backtracks: jax.Array
+    rel_grad: jax.Array
+    grad_norm: jax.Array
+    cond_bound: jax.Array
+    step_size: jax.Array
+    residual: jax.Array
+    converged: jax.Array
+    trace: NewtonTrace | None
+
+
+@pytree_dataclass
+class SubstepLoop:
+    """The substep loop's carry.
+
+    Attributes:
+      x, v: ``(N, 3)`` the state reached at ``pos``.
+      pos: ``()`` int32 time reached, in units of ``h / 2^D``.
+      level: ``()`` int32 the next attempt covers ``h / 2^level``.
+      count: ``()`` int32 accepted substeps.
+      tries: ``()`` int32 attempts made.
+      accel: ``(N, 3)`` the acceleration of the extrapolated start (m/s^2).
+      ws: ``(2^D, N, 3)`` the accepted substeps' deviations ``w``.
+      levels: ``(2^D,)`` int32 their levels.
+      failed: ``()`` bool, an attempt at ``level = D`` could not be taken (the step fails).
+      totals: the diagnostics so far (:class:`Totals`).
+      before: BDF2's memory at ``pos`` (``_implicit.bdf2.Before``), ``None`` for backward Euler.
+    """
+
+    x: jax.Array
+    v: jax.Array
+    pos: jax.Array
+    level: jax.Array
+    count: jax.Array
+    tries: jax.Array
+    accel: jax.Array
+    ws: jax.Array
+    levels: jax.Array
+    failed: jax.Array
+    totals: Totals
+    before: bdf2.Before | None = None
+
+
+def _trailing_zeros(n):
+    """``()`` int32 trailing zero bits of ``n > 0``."""
+    return lax.population_count((n & -n) - 1)
+
+
+def _problem(cloth, x, v, h, prev, layout, before):
+    """The step problem of a (sub)step of ``h`` from ``(x, v)``: backward Euler's, or BDF2's
+    with its memory ``before``."""
+    if before is not None:
+        x, v, h = bdf2.base(x, v, before, h)
+    return pr.StepProblem.build(cloth, x, v, h, prev, layout)
+
+
+def search(cloth, x0, v0, h, integ, rtol, prev, layout, start, tight, before=None):
+    """Find the substeps (on ``stop_gradient`` inputs): the final :class:`SubstepLoop`.
+
+    ``start``: the first attempt's Newton start (``p -> w``, the step's extrapolation), or
+    ``None`` (every attempt starts from the lab's ``x^n``); ``tight``: its ``tight_first``;
+    ``before``: BDF2's memory at the step's start, ``None`` for backward Euler.
+    """
+    D = integ.max_substep_depth
+    dtype = x0.dtype
+    g = cloth.gravity
+
+    def attempt(c: SubstepLoop):
+        size = jnp.left_shift(1, D - c.level)
+        hk = h * (size.astype(dtype) / 2**D)
+        ck, pk = substep_scene(cloth, prev, c.pos, size, D)
+        p = _problem(ck, c.x, c.v, hk, pk, layout, c.before)
+        w0 = None
+        if start is not None and p.contact is None:
+            if before is None:
+                later = hk**2 * (c.accel - g)
+            else:  # the same positions x + h_k v + h_k^2 a, as a deviation on BDF2's problem
+                later = (c.x - p.x0) + (hk * c.v - p.h * p.v0) + hk**2 * c.accel - p.h**2 * g
+            w0 = jnp.where(c.tries == 0, start(p), later)
+        s = newton(p, integ, rtol, w0, tight_first=tight & (c.tries == 0))
+        end = s.iterate
+        x, v = advance(p, end.w)
+        ok = ~s.fail & bounded(cloth, x, v)
+        conv = ok & (end.rel <= rtol)
+        accept = conv | (ok & (c.level == D))
+        failed = ~ok & (c.level == D)
+        t = c.totals
+        gnorm = jnp.linalg.norm(end.grad)
+        gnorm = jnp.where(jnp.isfinite(gnorm), gnorm, jnp.inf)
+        keep = lambda new, old: jnp.where(accept, new, old)  # noqa: E731
+        totals = Totals(t.newton_iters + s.it, t.cg_iters + s.cg, t.backtracks + s.bt,
+                        keep(jnp.maximum(t.rel_grad, end.rel), t.rel_grad),
+                        keep(jnp.maximum(t.grad_norm, gnorm), t.grad_norm),
+                        keep(jnp.maximum(t.cond_bound, pr.condition_bound(p, end.terms)), t.cond_bound),
+                        s.alpha, s.res, t.converged & (conv | ~accept), s.trace)
+        pos = jnp.where(accept, c.pos + size, c.pos)
+        level = jnp.where(accept, D - _trailing_zeros(jnp.maximum(pos, 1)), c.level + 1)
+        level = jnp.clip(level, 0, D)
+        slot = jnp.minimum(c.count, 2**D - 1)
+        put = lambda a, new: lax.dynamic_update_index_in_dim(a, keep(new, lax.dynamic_index_in_dim(a, slot, 0, keepdims=False)), slot, 0)  # noqa: E731 (no scatter)
+        return SubstepLoop(x=keep(x, c.x), v=keep(v, c.v), pos=pos, level=level, count=c.count + accept,
+                           tries=c.tries + 1, accel=keep((v - c.v) / hk, c.accel),
+                           ws=put(c.ws, end.w), levels=put(c.levels, c.level),
+                           failed=failed, totals=totals,
+                           before=None if c.before is None else c.before.after(c.x, c.v, hk, accept))
+
+    z = jnp.zeros((), dtype)
+    accel0 = jnp.zeros_like(x0)
+    if start is not None and not cloth.colliders:
+        p_full = _problem(cloth, x0, v0, h, prev, layout, before)
+        if before is None:
+            accel0 = start(p_full) / h**2 + g
+        else:  # the acceleration of the extrapolated positions
+            accel0 = ((p_full.x0 - x0) + (p_full.h * p_full.v0 - h * v0) + start(p_full)) / h**2 + (p_full.h / h)**2 * g
+    trace = NewtonTrace.empty(integ.newton_iters, dtype) if integ.trace else None
+    c0 = SubstepLoop(x=x0, v=v0, pos=jnp.int32(0), level=jnp.int32(0), count=jnp.int32(0), tries=jnp.int32(0),
+                     accel=accel0, ws=jnp.zeros((2**D,) + x0.shape, dtype), levels=jnp.zeros(2**D, jnp.int32),
+                     failed=jnp.array(False),
+                     totals=Totals(jnp.int32(0), jnp.int32(0), jnp.int32(0), z, z, z, z, z, jnp.array(True), trace),
+                     before=before)
+    return lax.while_loop(lambda c: (c.pos < 2**D) & ~c.failed & (c.tries < 2 ** (D + 1)), attempt, c0)
+
+
+def replay(cloth, x0, v0, h, integ, prev, layout, found: SubstepLoop, before=None):
+    """``(x, v, before)`` after the accepted substeps of ``found``, rebuilt from the
+    (differentiable) inputs, each through ``implicit_diff.solution``; ``before``: BDF2's
+    memory at the step's start and, returned, at its last substep (``None``: backward Euler)."""
+    D = integ.max_substep_depth
+
+    @jax.checkpoint
+    def one(carry, slot):
+        x, v, pos, mem = carry
+        w, level = slot
+        size = jnp.left_shift(1, D - level)
+        hk = h * (size.astype(x.dtype) / 2**D)
+        ck, pk = substep_scene(cloth, prev, pos, size, D)
+        p = _problem(ck, x, v, hk, pk, layout, mem)
+        x1, v1 = advance(p, solution(integ, w, p))
+        return x1, v1, pos + size, None if mem is None else bdf2.Before(x, v, hk)
+
+    def body(carry, slot):
+        i, w, level = slot
+        carry = lax.cond(i < found.count, lambda: one(carry, (w, level)), lambda: carry)
+        return carry, None
+
+    slots = (jnp.arange(2**D), found.ws, found.levels)
+    (x, v, _, last), _ = lax.scan(body, (x0, v0, jnp.int32(0), before), slots)
+    return x, v, last
