@@ -45,7 +45,7 @@ def _step(cloth, layout, state, dt, integrator, prev=None, guess=None, history=N
     elif history is not None:
         start, tight = history.start, history.jerk
         if before is not None:  # BDF2's problem is not built on (x^n, v^n, h)
-            start = lambda p: history.start_at(p, state.x, state.v, dt)  # noqa: E731
+            start = lambda p: history.start_at(p, state.v)  # noqa: E731
     return implicit(cloth, state, dt, integrator, prev, start, tight, layout, before)
 
 def step(cloth: Cloth, state: State, dt, integrator=ImplicitEuler(), guess=None,

@@ -134,12 +134,26 @@ def _problem(cloth, x, v, h, prev, layout, before):
     return pr.StepProblem.build(cloth, x, v, h, prev, layout)
 
 
-def search(cloth, x0, v0, h, integ, rtol, prev, layout, start, tight, before=None):
+def _after_whole(c0: SubstepLoop, whole, D: int) -> SubstepLoop:
+    """The loop's carry after the whole step's attempt ``whole = (w, StepInfo)`` (level 0 < D)."""
+    w, info = whole
+    conv = info.converged
+    keep = lambda a: jnp.where(conv, a, jnp.zeros_like(a))  # noqa: E731 (maxima over accepted substeps)
+    totals = Totals(info.newton_iters, info.cg_iters, info.backtracks, keep(info.rel_grad), keep(info.grad_norm),
+                    keep(info.cond_bound), info.step_size, info.residual, jnp.array(True), info.trace)
+    return dataclasses.replace(c0, pos=jnp.where(conv, 2**D, 0).astype(jnp.int32), level=jnp.where(conv, 0, 1).astype(jnp.int32),
+                               count=conv.astype(jnp.int32), tries=jnp.int32(1),
+                               ws=c0.ws.at[0].set(jnp.where(conv, w, 0.0)), totals=totals)
+
+
+def search(cloth, x0, v0, h, integ, rtol, prev, layout, start, tight, before=None, whole=None):
     """Find the substeps (on ``stop_gradient`` inputs): the final :class:`SubstepLoop`.
 
     ``start``: the first attempt's Newton start (``p -> w``, the step's extrapolation), or
     ``None`` (every attempt starts from the lab's ``x^n``); ``tight``: its ``tight_first``;
-    ``before``: BDF2's memory at the step's start, ``None`` for backward Euler.
+    ``before``: BDF2's memory at the step's start, ``None`` for backward Euler; ``whole``:
+    the whole step's attempt, made already, ``(w (N, 3), StepInfo)``: the loop starts after
+    it (accepted if it converged, else retried as halves), its iterations counted.
     """
     D = integ.max_substep_depth
     dtype = x0.dtype
@@ -198,6 +212,8 @@ def search(cloth, x0, v0, h, integ, rtol, prev, layout, start, tight, before=Non
                      failed=jnp.array(False),
                      totals=Totals(jnp.int32(0), jnp.int32(0), jnp.int32(0), z, z, z, z, z, jnp.array(True), trace),
                      before=before)
+    if whole is not None:
+        c0 = _after_whole(c0, whole, D)
     return lax.while_loop(lambda c: (c.pos < 2**D) & ~c.failed & (c.tries < 2 ** (D + 1)), attempt, c0)
 
 
