@@ -134,26 +134,30 @@ def _problem(cloth, x, v, h, prev, layout, before):
     return pr.StepProblem.build(cloth, x, v, h, prev, layout)
 
 
-def _after_whole(c0: SubstepLoop, whole, D: int) -> SubstepLoop:
-    """The loop's carry after the whole step's attempt ``whole = (w, StepInfo)`` (level 0 < D)."""
+def _after_whole(x0, v0, accel0, before, whole, D: int) -> SubstepLoop:
+    """The loop's carry after the whole step's attempt ``whole = (w, StepInfo)`` (level
+    0 < D): done where it converged, else at level 1 with its iterations counted."""
     w, info = whole
     conv = info.converged
     keep = lambda a: jnp.where(conv, a, jnp.zeros_like(a))  # noqa: E731 (maxima over accepted substeps)
     totals = Totals(info.newton_iters, info.cg_iters, info.backtracks, keep(info.rel_grad), keep(info.grad_norm),
                     keep(info.cond_bound), info.step_size, info.residual, jnp.array(True), info.trace)
-    return dataclasses.replace(c0, pos=jnp.where(conv, 2**D, 0).astype(jnp.int32), level=jnp.where(conv, 0, 1).astype(jnp.int32),
-                               count=conv.astype(jnp.int32), tries=jnp.int32(1),
-                               ws=c0.ws.at[0].set(jnp.where(conv, w, 0.0)), totals=totals)
+    ws = lax.dynamic_update_index_in_dim(jnp.zeros((2**D,) + x0.shape, x0.dtype), jnp.where(conv, w, 0.0), 0, 0)
+    return SubstepLoop(x=x0, v=v0, pos=jnp.where(conv, 2**D, 0).astype(jnp.int32),
+                       level=jnp.where(conv, 0, 1).astype(jnp.int32), count=conv.astype(jnp.int32),
+                       tries=jnp.int32(1), accel=accel0, ws=ws, levels=jnp.zeros(2**D, jnp.int32),
+                       failed=jnp.array(False), totals=totals, before=before)
 
 
-def search(cloth, x0, v0, h, integ, rtol, prev, layout, start, tight, before=None, whole=None):
+def search(cloth, x0, v0, h, integ, rtol, prev, layout, start, tight, before, whole):
     """Find the substeps (on ``stop_gradient`` inputs): the final :class:`SubstepLoop`.
 
     ``start``: the first attempt's Newton start (``p -> w``, the step's extrapolation), or
     ``None`` (every attempt starts from the lab's ``x^n``); ``tight``: its ``tight_first``;
     ``before``: BDF2's memory at the step's start, ``None`` for backward Euler; ``whole``:
-    the whole step's attempt, made already, ``(w (N, 3), StepInfo)``: the loop starts after
-    it (accepted if it converged, else retried as halves), its iterations counted.
+    the whole step's attempt, made already (``_implicit.step``), ``(w (N, 3), StepInfo)``:
+    the loop starts after it (accepted if it converged, else retried as halves), its
+    iterations counted.
     """
     D = integ.max_substep_depth
     dtype = x0.dtype
@@ -198,7 +202,6 @@ def search(cloth, x0, v0, h, integ, rtol, prev, layout, start, tight, before=Non
                            failed=failed, totals=totals,
                            before=None if c.before is None else c.before.after(c.x, c.v, hk, accept))
 
-    z = jnp.zeros((), dtype)
     accel0 = jnp.zeros_like(x0)
     if start is not None and not cloth.colliders:
         p_full = _problem(cloth, x0, v0, h, prev, layout, before)
@@ -206,14 +209,7 @@ def search(cloth, x0, v0, h, integ, rtol, prev, layout, start, tight, before=Non
             accel0 = start(p_full) / h**2 + g
         else:  # the acceleration of the extrapolated positions
             accel0 = ((p_full.x0 - x0) + (p_full.h * p_full.v0 - h * v0) + start(p_full)) / h**2 + (p_full.h / h)**2 * g
-    trace = NewtonTrace.empty(integ.newton_iters, dtype) if integ.trace else None
-    c0 = SubstepLoop(x=x0, v=v0, pos=jnp.int32(0), level=jnp.int32(0), count=jnp.int32(0), tries=jnp.int32(0),
-                     accel=accel0, ws=jnp.zeros((2**D,) + x0.shape, dtype), levels=jnp.zeros(2**D, jnp.int32),
-                     failed=jnp.array(False),
-                     totals=Totals(jnp.int32(0), jnp.int32(0), jnp.int32(0), z, z, z, z, z, jnp.array(True), trace),
-                     before=before)
-    if whole is not None:
-        c0 = _after_whole(c0, whole, D)
+    c0 = _after_whole(x0, v0, accel0, before, whole, D)
     return lax.while_loop(lambda c: (c.pos < 2**D) & ~c.failed & (c.tries < 2 ** (D + 1)), attempt, c0)
 
 
