@@ -62,7 +62,7 @@ def _whole(cloth: Cloth, state: State, dt, integ: ImplicitEuler, prev, start, ti
     info = StepInfo(newton_iters=s.it, cg_iters=s.cg, grad_norm=jnp.where(jnp.isfinite(gnorm), gnorm, jnp.inf),
                     rel_grad=end.rel, step_size=s.alpha, backtracks=s.bt, residual=s.res,
                     converged=ok & (end.rel <= rtol), stable=ok, valid=valid,
-                    cond_bound=pr.condition_bound(p_const, end.terms), substeps=jnp.int32(1), trace=s.trace)
+                    cond_bound=pr.condition_bound(p_const, end.terms), substeps=ok.astype(jnp.int32), trace=s.trace)
     return State(x, v), info, None if before is None else before.after(x0, v0, h, ok), lax.stop_gradient(end.w)
 
 
