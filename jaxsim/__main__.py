@@ -19,8 +19,8 @@ def main(argv=None) -> int:
     p.add_argument("--force", action="store_true", help="write into --out even if it holds files demo did not write")
     p = sub.add_parser("report", help="write the error-vs-time and stability report")
     p.add_argument("--out", default="jaxsim-report", help="output folder (default: ./jaxsim-report)")
-    p.add_argument("--quick", action="store_true", help="small sizes (about 6 minutes on 2 cores "
-                   "with an empty compilation cache)")
+    p.add_argument("--quick", action="store_true", help="small sizes, sections in two processes (about 4 "
+                   "minutes on 2 cores with an empty compilation cache)")
     p.add_argument("--force", action="store_true", help="write into --out even if it holds files report did not write")
     p = sub.add_parser("bench", help="run the package's benchmark scripts (source checkout)")
     p.add_argument("names", nargs="*", help="benchmarks to run (none: list them with their last durations)")

@@ -33,8 +33,10 @@ def _save(key: str, seconds: float) -> None:
     times[key] = seconds
     try:
         os.makedirs(os.path.dirname(_store()), exist_ok=True)
-        with open(_store(), "w") as f:
+        tmp = f"{_store()}.{os.getpid()}"
+        with open(tmp, "w") as f:  # whole or not at all: report sections save from several processes
             json.dump(times, f, indent=1, sort_keys=True)
+        os.replace(tmp, _store())
     except OSError:
         pass  # no estimate next time; nothing else depends on it
 

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
-
 import jax
 import jax.numpy as jnp
 from jax import lax
@@ -31,18 +29,12 @@ def implicit(cloth: Cloth, state: State, dt, integ: ImplicitEuler, prev=None, st
     for backward Euler, and the memory for the next step is returned (``None`` likewise).
     """
     if not integ.max_substep_depth:
-        return _whole(cloth, state, dt, integ, prev, start, tight, layout, before)[:3]
-    # the whole step first, by the same program as without substeps: a step that converges
-    # costs what it did (B 32x32 CG: 18% more through the substep loop); under vmap both
-    # branches run, and the search starts where the whole attempt ended
-    plain = dataclasses.replace(integ, max_substep_depth=0)
-    new, info, mem, w = _whole(cloth, state, dt, plain, prev, start, tight, layout, before)
-    return lax.cond(info.converged | ~info.valid, lambda: (new, info, mem),
-                    lambda: _substepped(cloth, state, dt, integ, prev, start, tight, layout, before, (w, info)))
+        return _whole(cloth, state, dt, integ, prev, start, tight, layout, before)
+    return _substepped(cloth, state, dt, integ, prev, start, tight, layout, before)
 
 
 def _whole(cloth: Cloth, state: State, dt, integ: ImplicitEuler, prev, start, tight, layout, before):
-    """:func:`implicit` on the whole step, and Newton's last deviation ``w (N, 3)``."""
+    """:func:`implicit` on the whole step."""
     x0, v0, h = state.x, state.v, dt
     valid = valid_inputs(cloth, dt)
     xb, vb, hb = (x0, v0, h) if before is None else bdf2.base(x0, v0, before, h)
@@ -63,12 +55,12 @@ def _whole(cloth: Cloth, state: State, dt, integ: ImplicitEuler, prev, start, ti
                     rel_grad=end.rel, step_size=s.alpha, backtracks=s.bt, residual=s.res,
                     converged=ok & (end.rel <= rtol), stable=ok, valid=valid,
                     cond_bound=pr.condition_bound(p_const, end.terms), substeps=ok.astype(jnp.int32), trace=s.trace)
-    return State(x, v), info, None if before is None else before.after(x0, v0, h, ok), lax.stop_gradient(end.w)
+    return State(x, v), info, None if before is None else before.after(x0, v0, h, ok)
 
 
-def _substepped(cloth: Cloth, state: State, dt, integ: ImplicitEuler, prev, start, tight, layout, before, whole):
-    """:func:`implicit` with adaptive substeps (``_implicit.substeps``); ``whole``: the
-    whole step's attempt, ``(w (N, 3), StepInfo)``."""
+def _substepped(cloth: Cloth, state: State, dt, integ: ImplicitEuler, prev, start, tight, layout, before):
+    """:func:`implicit` with adaptive substeps (``_implicit.substeps``): the whole step is
+    the search's first attempt."""
     x0, v0 = state.x, state.v
     valid = valid_inputs(cloth, dt)
     const = lambda a: jax.tree_util.tree_map(lax.stop_gradient, a)  # noqa: E731
@@ -78,7 +70,7 @@ def _substepped(cloth: Cloth, state: State, dt, integ: ImplicitEuler, prev, star
         start_fn = start
         start = lambda p: lax.stop_gradient(start_fn(p))  # noqa: E731
     found = sb.search(scene, const(x0), const(v0), const(dt), integ, integ.resolved_rtol(x0.dtype),
-                      const(prev), layout, start, tight, const(before), const(whole))
+                      const(prev), layout, start, tight, const(before))
     x, v, last = sb.replay(cloth, x0, v0, dt, integ, prev, layout, found, before)
     ok = valid & ~found.failed & bounded(cloth, x, v)
     t = found.totals

@@ -12,8 +12,8 @@ Newton runs on ``stop_gradient`` data (its derivatives come from the implicit fu
 theorem, ``implicit_diff``).  The accepted deviations ``w_k`` are recorded, and
 :func:`replay` rebuilds each accepted substep's problem from the differentiable inputs
 and applies ``implicit_diff.solution`` to it, in a ``lax.scan`` over ``2^D`` slots whose
-inactive slots are skipped by a ``lax.cond``: a step that converged at once computes what
-the plain step does.  Each slot is rematerialised in reverse mode, so the backward pass
+inactive slots are skipped by a ``lax.cond``; a step taken whole (the first attempt, the
+whole step, converged) replays its one slot without the scan.  Each slot is rematerialised in reverse mode, so the backward pass
 keeps the slot's state, not its linearisation.
 
 Each substep after the first starts Newton from the constant-acceleration extrapolation
@@ -134,30 +134,22 @@ def _problem(cloth, x, v, h, prev, layout, before):
     return pr.StepProblem.build(cloth, x, v, h, prev, layout)
 
 
-def _after_whole(x0, v0, accel0, before, whole, D: int) -> SubstepLoop:
-    """The loop's carry after the whole step's attempt ``whole = (w, StepInfo)`` (level
-    0 < D): done where it converged, else at level 1 with its iterations counted."""
-    w, info = whole
-    conv = info.converged
-    keep = lambda a: jnp.where(conv, a, jnp.zeros_like(a))  # noqa: E731 (maxima over accepted substeps)
-    totals = Totals(info.newton_iters, info.cg_iters, info.backtracks, keep(info.rel_grad), keep(info.grad_norm),
-                    keep(info.cond_bound), info.step_size, info.residual, jnp.array(True), info.trace)
-    ws = lax.dynamic_update_index_in_dim(jnp.zeros((2**D,) + x0.shape, x0.dtype), jnp.where(conv, w, 0.0), 0, 0)
-    return SubstepLoop(x=x0, v=v0, pos=jnp.where(conv, 2**D, 0).astype(jnp.int32),
-                       level=jnp.where(conv, 0, 1).astype(jnp.int32), count=conv.astype(jnp.int32),
-                       tries=jnp.int32(1), accel=accel0, ws=ws, levels=jnp.zeros(2**D, jnp.int32),
-                       failed=jnp.array(False), totals=totals, before=before)
+def _acceleration(w, p, x, v, h, g, euler: bool):
+    """``(N, 3)`` the acceleration ``a`` of the start ``w`` of the step problem ``p`` from
+    ``(x, v)`` over ``h``: its positions are ``x + h v + h^2 a`` (m/s^2)."""
+    if euler:
+        return w / h**2 + g
+    # BDF2: the deviation is on the shifted problem (``p.x0``, ``p.v0`` over ``p.h``)
+    return ((p.x0 - x) + (p.h * p.v0 - h * v) + w) / h**2 + (p.h / h)**2 * g
 
 
-def search(cloth, x0, v0, h, integ, rtol, prev, layout, start, tight, before, whole):
+def search(cloth, x0, v0, h, integ, rtol, prev, layout, start, tight, before):
     """Find the substeps (on ``stop_gradient`` inputs): the final :class:`SubstepLoop`.
 
     ``start``: the first attempt's Newton start (``p -> w``, the step's extrapolation), or
     ``None`` (every attempt starts from the lab's ``x^n``); ``tight``: its ``tight_first``;
-    ``before``: BDF2's memory at the step's start, ``None`` for backward Euler; ``whole``:
-    the whole step's attempt, made already (``_implicit.step``), ``(w (N, 3), StepInfo)``:
-    the loop starts after it (accepted if it converged, else retried as halves), its
-    iterations counted.
+    ``before``: BDF2's memory at the step's start, ``None`` for backward Euler.  The first
+    attempt is the whole step (level 0); a step that converges makes no other.
     """
     D = integ.max_substep_depth
     dtype = x0.dtype
@@ -168,13 +160,17 @@ def search(cloth, x0, v0, h, integ, rtol, prev, layout, start, tight, before, wh
         hk = h * (size.astype(dtype) / 2**D)
         ck, pk = substep_scene(cloth, prev, c.pos, size, D)
         p = _problem(ck, c.x, c.v, hk, pk, layout, c.before)
-        w0 = None
+        w0, accel = None, c.accel
         if start is not None and p.contact is None:
             if before is None:
                 later = hk**2 * (c.accel - g)
             else:  # the same positions x + h_k v + h_k^2 a, as a deviation on BDF2's problem
                 later = (c.x - p.x0) + (hk * c.v - p.h * p.v0) + hk**2 * c.accel - p.h**2 * g
-            w0 = jnp.where(c.tries == 0, start(p), later)
+            first = start(p)
+            w0 = jnp.where(c.tries == 0, first, later)
+            # the first attempt is the whole step: its start's acceleration is where a
+            # retried half starts from
+            accel = jnp.where(c.tries == 0, _acceleration(first, p, c.x, c.v, hk, g, before is None), c.accel)
         s = newton(p, integ, rtol, w0, tight_first=tight & (c.tries == 0))
         end = s.iterate
         x, v = advance(p, end.w)
@@ -197,19 +193,18 @@ def search(cloth, x0, v0, h, integ, rtol, prev, layout, start, tight, before, wh
         slot = jnp.minimum(c.count, 2**D - 1)
         put = lambda a, new: lax.dynamic_update_index_in_dim(a, keep(new, lax.dynamic_index_in_dim(a, slot, 0, keepdims=False)), slot, 0)  # noqa: E731 (no scatter)
         return SubstepLoop(x=keep(x, c.x), v=keep(v, c.v), pos=pos, level=level, count=c.count + accept,
-                           tries=c.tries + 1, accel=keep((v - c.v) / hk, c.accel),
+                           tries=c.tries + 1, accel=keep((v - c.v) / hk, accel),
                            ws=put(c.ws, end.w), levels=put(c.levels, c.level),
                            failed=failed, totals=totals,
                            before=None if c.before is None else c.before.after(c.x, c.v, hk, accept))
 
-    accel0 = jnp.zeros_like(x0)
-    if start is not None and not cloth.colliders:
-        p_full = _problem(cloth, x0, v0, h, prev, layout, before)
-        if before is None:
-            accel0 = start(p_full) / h**2 + g
-        else:  # the acceleration of the extrapolated positions
-            accel0 = ((p_full.x0 - x0) + (p_full.h * p_full.v0 - h * v0) + start(p_full)) / h**2 + (p_full.h / h)**2 * g
-    c0 = _after_whole(x0, v0, accel0, before, whole, D)
+    z = jnp.zeros((), dtype)
+    trace = NewtonTrace.empty(integ.newton_iters, dtype) if integ.trace else None
+    c0 = SubstepLoop(x=x0, v=v0, pos=jnp.int32(0), level=jnp.int32(0), count=jnp.int32(0), tries=jnp.int32(0),
+                     accel=jnp.zeros_like(x0), ws=jnp.zeros((2**D,) + x0.shape, dtype), levels=jnp.zeros(2**D, jnp.int32),
+                     failed=jnp.array(False),
+                     totals=Totals(jnp.int32(0), jnp.int32(0), jnp.int32(0), z, z, z, z, z, jnp.array(True), trace),
+                     before=before)
     return lax.while_loop(lambda c: (c.pos < 2**D) & ~c.failed & (c.tries < 2 ** (D + 1)), attempt, c0)
 
 
@@ -235,6 +230,14 @@ def replay(cloth, x0, v0, h, integ, prev, layout, found: SubstepLoop, before=Non
         carry = lax.cond(i < found.count, lambda: one(carry, (w, level)), lambda: carry)
         return carry, None
 
-    slots = (jnp.arange(2**D), found.ws, found.levels)
-    (x, v, _, last), _ = lax.scan(body, (x0, v0, jnp.int32(0), before), slots)
+    first = (x0, v0, jnp.int32(0), before)
+
+    def substepped():
+        slots = (jnp.arange(2**D), found.ws, found.levels)
+        return lax.scan(body, first, slots)[0]
+
+    # a step taken whole (the common case) replays its one slot without the scan's
+    # 2^D slot tests (unbatched; under vmap both branches run)
+    whole = (found.count == 1) & (found.levels[0] == 0)
+    x, v, _, last = lax.cond(whole, lambda: one(first, (found.ws[0], found.levels[0])), substepped)
     return x, v, last
