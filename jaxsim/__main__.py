@@ -14,7 +14,7 @@ def main(argv=None) -> int:
     sub = parser.add_subparsers(dest="command", required=True)
     p = sub.add_parser("demo", help="run the lab's scenes and write animations and a summary")
     p.add_argument("--out", default="jaxsim-demo", help="output folder (default: ./jaxsim-demo)")
-    p.add_argument("--fast", action="store_true", help="shorter runs of the same scenes (about 3 minutes on 2 cores "
+    p.add_argument("--fast", action="store_true", help="shorter runs of the same scenes (about 2 minutes on 2 cores "
                    "with an empty compilation cache)")
     p.add_argument("--force", action="store_true", help="write into --out even if it holds files demo did not write")
     p = sub.add_parser("report", help="write the error-vs-time and stability report")
