@@ -13,8 +13,9 @@ theorem, ``implicit_diff``).  The accepted deviations ``w_k`` are recorded, and
 :func:`replay` rebuilds each accepted substep's problem from the differentiable inputs
 and applies ``implicit_diff.solution`` to it, in a ``lax.scan`` over ``2^D`` slots whose
 inactive slots are skipped by a ``lax.cond``; a step taken whole (the first attempt, the
-whole step, converged) replays its one slot without the scan.  Each slot is rematerialised in reverse mode, so the backward pass
-keeps the slot's state, not its linearisation.
+whole step, converged) replays its one slot without the scan.  Each slot is
+rematerialised in reverse mode, so the backward pass keeps the slot's state, not its
+linearisation.
 
 Each substep after the first starts Newton from the constant-acceleration extrapolation
 ``x + h_k v + h_k^2 a`` with ``a`` the last accepted substep's ``(v_new - v) / h``
