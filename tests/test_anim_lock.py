@@ -1,5 +1,6 @@
-"""``anim.lock_feet`` on the shipped CMU walk: no sliding in the contact spans, bone lengths
-kept, frames away from the spans unchanged, and gradients through it."""
+"""``anim.lock_feet`` on the shipped CMU walk and on synthetic walks: no sliding in the
+contact spans, bone lengths kept, frames away from the spans unchanged, and gradients
+through it."""
 
 import jax
 import jax.numpy as jnp
@@ -7,9 +8,67 @@ import numpy as np
 import pytest
 from jax.test_util import check_grads
 
-from jaxsim import anim
+from jaxsim import anim, ik
 
 FEET = ("LeftToe", "RightToe")
+
+
+def synthetic_walk(speed, cadence, phase, dtype, T=240, fps=60.0):
+    """A 9-joint biped (hips; hip, knee, ankle, toe per leg) walking along +z: the hips
+    swing sinusoidally, so a planted toe slides (its speed is zero only mid-stance).
+    Returns the clip and its ``(T, 2)`` stance mask (the hip swinging back)."""
+    leg = [[0, -0.45, 0], [0, -0.42, 0], [0, -0.06, 0.13]]
+    off = np.array([[0, 0.9, 0], [0.1, -0.05, 0]] + leg + [[-0.1, -0.05, 0]] + leg)
+    sk = ik.Skeleton(parents=(-1, 0, 1, 2, 3, 0, 5, 6, 7), offsets=off.astype(dtype),
+                     names=("hips", "lhip", "lknee", "lankle", "ltoe", "rhip", "rknee", "rankle", "rtoe"))
+    t = np.arange(T) / fps
+    w = 2 * np.pi * cadence
+    about_x = lambda a: np.stack([np.cos(a / 2), np.sin(a / 2), 0 * a, 0 * a], -1)  # noqa: E731
+    rot = np.zeros((T, 9, 4))
+    rot[..., 0] = 1.0
+    stance = np.zeros((T, 2), bool)
+    for f, (j, ph) in enumerate(((1, phase), (5, phase + np.pi))):
+        c = np.cos(w * t + ph)
+        rot[:, j] = about_x(-speed / (0.93 * w) * np.sin(w * t + ph))  # forward swing is -x
+        rot[:, j + 1] = about_x(0.15 + 0.7 * np.maximum(c, 0))  # the knee bends back, more in the swing
+        rot[:, j + 2] = about_x(-0.2 * np.maximum(c, 0))
+        stance[:, f] = c < -0.2
+    root = np.stack([0 * t, 0.9 + 0.01 * np.cos(2 * w * t), speed * t], 1)
+    return anim.Motion(skeleton=sk, rotations=rot.astype(dtype), root_positions=root.astype(dtype),
+                       frame_time=1 / fps), stance
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_synthetic_walks_stop_sliding(dtype):
+    rng = np.random.default_rng(3)
+    feet, bar = ("ltoe", "rtoe"), (1e-9 if dtype == np.float64 else 1e-3)  # the issue's bar: 1 mm
+    for _ in range(3):  # gaits of one shape: one compiled program
+        m, stance = synthetic_walk(rng.uniform(0.8, 1.6), rng.uniform(0.8, 1.2), rng.uniform(0, 2 * np.pi), dtype)
+        for down in (stance, anim.foot_contacts(m, feet)):
+            assert down.any(0).all() and not down.all()
+            assert np.all(anim.foot_slide(m, feet, down) > 0.005)
+            locked = anim.lock_feet(m, feet, down)
+            assert locked.rotations.dtype == dtype
+            assert np.all(anim.foot_slide(locked, feet, down) <= bar)
+            P0, P1 = np.asarray(anim.positions(m), np.float64), np.asarray(anim.positions(locked), np.float64)
+            par = list(m.skeleton.parents[1:])
+            np.testing.assert_allclose(np.linalg.norm(P1[:, 1:] - P1[:, par], axis=-1),
+                                       np.linalg.norm(P0[:, 1:] - P0[:, par], axis=-1), atol=10 * bar)
+            away = ~np.convolve(down.any(1), np.ones(2 * 6 + 1), "same").astype(bool)
+            assert np.abs(P1 - P0)[away].max(initial=0.0) <= 10 * bar
+            assert np.abs(P1 - P0).max() < 0.15  # close to the input (a toe moves by its slide at most)
+
+
+def test_array_likes_become_the_skeletons_dtype():
+    m, _ = synthetic_walk(1.0, 1.0, 0.0, np.float32, T=4)
+    assert isinstance(m.rotations, jax.Array) and m.rotations.dtype == np.float32
+    assert m.root_positions.dtype == np.float32
+    bad = np.asarray(m.rotations).copy()
+    bad[2, 3, 1] = np.nan
+    with pytest.raises(ValueError, match=r"rotations must be finite; not in frames \[2\]"):
+        anim.Motion(skeleton=m.skeleton, rotations=bad, root_positions=m.root_positions)
+    with pytest.raises(ValueError, match="root_positions must hold real numbers"):
+        anim.Motion(skeleton=m.skeleton, rotations=m.rotations, root_positions=np.full((4, 3), "x"))
 
 
 @pytest.fixture(scope="module")

@@ -8,6 +8,7 @@ import jax
 import numpy as np
 
 from .._dataclass import is_concrete, pytree_dataclass, static_field
+from .._dtype import as_float, check_array_dtype
 from .._geometry import quat as _quat
 from ..ik import Skeleton
 from ..ik._stacked import fk_stacked
@@ -56,6 +57,17 @@ class Motion:
             raise ValueError(f"root_positions must have shape ({r[0]}, 3) for {r[0]} frames, got {p}")
         if self.translations is not None and np.shape(self.translations) != (r[0], J, 3):
             raise ValueError(f"translations must have shape ({r[0]}, {J}, 3) or be None, got {np.shape(self.translations)}")
+        dtype = self.skeleton.offsets.dtype  # array-likes become the skeleton's float dtype
+        for name in ("rotations", "root_positions", "translations"):
+            value = getattr(self, name)
+            if value is None:
+                continue
+            a = np.asarray(value)
+            check_array_dtype(f"Motion {name}", a.dtype)
+            bad = ~np.isfinite(a).all(axis=tuple(range(1, a.ndim)))
+            if bad.any():
+                raise ValueError(f"Motion {name} must be finite; not in frames {np.flatnonzero(bad)[:5].tolist()}")
+            object.__setattr__(self, name, as_float(value, dtype))
         if not (np.isfinite(self.frame_time) and self.frame_time > 0):
             raise ValueError(f"frame_time must be > 0 seconds, got {self.frame_time!r}")
         if self.channels and len(self.channels) != J:

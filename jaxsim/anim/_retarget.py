@@ -6,9 +6,10 @@ import dataclasses
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from .._dataclass import pytree_dataclass
+from .._dtype import tiny
+from .._validate import check_real
 from .._geometry import quat as _quat
 from .. import ik
 from ._contacts import joint_ids
@@ -33,12 +34,12 @@ class Retargeted:
     scale: jax.Array
 
 
-def _path_length(sk, j: int) -> float:
-    """The summed bone lengths from the root to joint ``j`` (pose-independent)."""
-    off = np.asarray(sk.offsets, np.float64)
-    total = 0.0
+def _path_length(sk, j: int) -> jax.Array:
+    """``()`` the summed bone lengths from the root to joint ``j`` (pose-independent;
+    differentiable in the offsets)."""
+    total = jnp.zeros((), sk.offsets.dtype)
     while j > 0:
-        total += float(np.linalg.norm(off[j]))
+        total = total + _quat.safe_norm(_quat.unstack(sk.offsets[j], -1))
         j = sk.parents[j]
     return total
 
@@ -77,10 +78,11 @@ def retarget(motion: Motion, skeleton, mapping: dict, *, scale=None, solver="lm"
         raise ValueError("mapping must not name a root: the roots are mapped to each other")
     dtype = skeleton.offsets.dtype
     if scale is None:  # the legs: the mapped joint lowest in the target's rest pose, and its source
-        low = int(np.argmin(np.asarray(ik.fk(skeleton).positions)[tgt, 1]))
-        scale = _path_length(skeleton, tgt[low]) / max(_path_length(motion.skeleton, src[low]), 1e-30)
-    if not (np.isfinite(scale) and scale > 0):
-        raise ValueError(f"scale must be a finite number > 0, got {scale!r}")
+        low = jnp.argmin(ik.fk(skeleton).positions[jnp.asarray(tgt), 1])
+        lengths = [jnp.stack([_path_length(sk, j) for j in ids]) for sk, ids in ((skeleton, tgt), (motion.skeleton, src))]
+        scale = lengths[0][low] / jnp.maximum(lengths[1][low], tiny(dtype))
+    if not isinstance(scale, jax.core.Tracer):
+        check_real("scale", scale, minimum=0.0, strict=True)
     P = positions(motion)
     root_q = global_rotations(motion)[:, 0]
     rel = scale * (P[:, list(src)] - P[:, :1])  # (T, E, 3) in the world's axes, about the root
