@@ -8,34 +8,10 @@ import numpy as np
 import pytest
 from jax.test_util import check_grads
 
-from jaxsim import anim, ik
+from _helpers import synthetic_walk
+from jaxsim import anim
 
 FEET = ("LeftToe", "RightToe")
-
-
-def synthetic_walk(speed, cadence, phase, dtype, T=240, fps=60.0):
-    """A 9-joint biped (hips; hip, knee, ankle, toe per leg) walking along +z: the hips
-    swing sinusoidally, so a planted toe slides (its speed is zero only mid-stance).
-    Returns the clip and its ``(T, 2)`` stance mask (the hip swinging back)."""
-    leg = [[0, -0.45, 0], [0, -0.42, 0], [0, -0.06, 0.13]]
-    off = np.array([[0, 0.9, 0], [0.1, -0.05, 0]] + leg + [[-0.1, -0.05, 0]] + leg)
-    sk = ik.Skeleton(parents=(-1, 0, 1, 2, 3, 0, 5, 6, 7), offsets=off.astype(dtype),
-                     names=("hips", "lhip", "lknee", "lankle", "ltoe", "rhip", "rknee", "rankle", "rtoe"))
-    t = np.arange(T) / fps
-    w = 2 * np.pi * cadence
-    about_x = lambda a: np.stack([np.cos(a / 2), np.sin(a / 2), 0 * a, 0 * a], -1)  # noqa: E731
-    rot = np.zeros((T, 9, 4))
-    rot[..., 0] = 1.0
-    stance = np.zeros((T, 2), bool)
-    for f, (j, ph) in enumerate(((1, phase), (5, phase + np.pi))):
-        c = np.cos(w * t + ph)
-        rot[:, j] = about_x(-speed / (0.93 * w) * np.sin(w * t + ph))  # forward swing is -x
-        rot[:, j + 1] = about_x(0.15 + 0.7 * np.maximum(c, 0))  # the knee bends back, more in the swing
-        rot[:, j + 2] = about_x(-0.2 * np.maximum(c, 0))
-        stance[:, f] = c < -0.2
-    root = np.stack([0 * t, 0.9 + 0.01 * np.cos(2 * w * t), speed * t], 1)
-    return anim.Motion(skeleton=sk, rotations=rot.astype(dtype), root_positions=root.astype(dtype),
-                       frame_time=1 / fps), stance
 
 
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
