@@ -113,6 +113,13 @@ def bdf2_table():
         ratio = f"{r['paired_ratio_median']:.2f}" if "paired_ratio_median" in r else ""
         out.append(f"| {r['case']} | {r['integrator']} | {r['ms_per_step']:.2f} | {ratio} | {r['newton_per_step']:.2f} | "
                    f"{r['substeps_total']} ({r['steps']} steps) | {100 * r['converged_share']:.0f}% | {r['compile_s']:.1f} |")
+    if d.get("contact"):
+        out += ["", "| drape | integrator | ms/step | converged | substeps | Newton/step | closest approach (m) | "
+                "energy rise (J) | compile (s) |", "|---|---|---|---|---|---|---|---|---|"]
+        for r in d["contact"]:
+            out.append(f"| {r['case']} | {r['integrator']} | {r['ms_per_step']:.1f} | {100 * r['converged_share']:.0f}% | "
+                       f"{r['substeps_total']} ({r['steps']} steps) | {r['newton_per_step']:.2f} | "
+                       f"{r['min_distance_m']:.1e} | {r['energy_max_minus_start_J']:.1e} | {r['compile_s']:.1f} |")
     return "\n".join(out)
 
 

@@ -14,7 +14,12 @@ Cost: scenes A (the lab cloth, CG and Cholesky) and B (32x32 and 128x128 grids, 
 moving state 10 backward-Euler steps in; backward Euler and BDF2 with the same settings
 alternated in one process, median of rounds and the median paired ratio.
 
-Run: ``python benchmarks/cloth_bdf2.py [--quick]``; writes ``benchmarks/results/cloth_bdf2.json``.
+Contact: ``cloth_substeps.py``'s drape (a 0.5 kg cloth dropped onto a sphere over a floor,
+friction 0.4, k = 1e3, dt = 1/60, 60 steps from rest, float64, default settings) at 16x16
+and 32x32: converged steps, substeps, the closest approach to a collider, the highest
+total energy against the start's, and ms per step, backward Euler and BDF2 alternated.
+
+Run: ``python benchmarks/cloth_bdf2.py [--quick] [--only-contact]``; writes ``benchmarks/results/cloth_bdf2.json``.
 """
 
 from __future__ import annotations
@@ -130,15 +135,59 @@ def cost(quick, rounds):
     return rows
 
 
+def contact(quick, rounds):
+    """The drape under backward Euler and BDF2 (module doc), alternated in one process."""
+    from cloth_substeps import drape
+
+    rows = []
+    for n in (16,) if quick else (16, 32):
+        cloth = drape(n, np.float64)
+        s0 = C.State.at_rest(cloth)
+        fns = {name: jax.jit(lambda s, integ=integ: C.rollout(cloth, s, 1 / 60, 60, integ))
+               for name, integ in INTEGRATORS.items()}
+        compile_s = {name: time_call(f, s0, repeats=1)["compile_s"] for name, f in fns.items()}
+        runs = {name: [] for name in fns}
+        for _ in range(rounds):
+            for name, f in fns.items():
+                runs[name].append(time_call(f, s0, repeats=1)["run_s"])
+        e0 = float(C.total_energy(cloth, s0.x, s0.v))
+        for name, f in fns.items():
+            states, info = f(s0)
+            gap = min(float(jnp.min(c.distance(states.x.reshape(-1, 3)))) for c in cloth.colliders)
+            e = jax.vmap(lambda x, v: C.total_energy(cloth, x, v))(states.x, states.v)
+            row = {"case": f"drape {n}x{n}", "integrator": name, "steps": 60, "dt": 1 / 60,
+                   "ms_per_step": 1e3 * statistics.median(runs[name]) / 60,
+                   "converged_share": float(np.mean(info.converged)), "substeps_total": int(jnp.sum(info.substeps)),
+                   "newton_per_step": float(np.mean(info.newton_iters)), "min_distance_m": gap,
+                   "energy_max_minus_start_J": float(jnp.max(e)) - e0, "compile_s": compile_s[name]}
+            print(f"drape {n}x{n} {name:14s}: {row['ms_per_step']:.1f} ms/step, converged "
+                  f"{100 * row['converged_share']:.0f}%, substeps {row['substeps_total']}, Newton "
+                  f"{row['newton_per_step']:.2f}/step, min distance {gap:.2e} m, "
+                  f"energy rise {row['energy_max_minus_start_J']:.2e} J", flush=True)
+            rows.append(row)
+    return rows
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--quick", action="store_true", help="fewer step sizes, no 128x128")
     ap.add_argument("--rounds", type=int, default=5)
+    ap.add_argument("--only-contact", action="store_true", help="the drape rows only (merged into the last results)")
     args = ap.parse_args()
     jaxsim.retain_host_memory()
+    if args.only_contact:
+        import json
+
+        path = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results", "cloth_bdf2.json")
+        with open(path) as f:
+            last = json.load(f)
+        kept = {k: v for k, v in last.items() if k not in ("benchmark", "machine", "timestamp", "contact")}
+        kept["accuracy_and_cost_from"] = last.get("accuracy_and_cost_from", last.get("timestamp"))
+        write("cloth_bdf2", dict(kept, contact=contact(args.quick, args.rounds)))
+        return
     dts = (1 / 30, 1 / 60) if args.quick else (1 / 30, 1 / 60, 1 / 120, 1 / 240)
     acc = [r for name in SWINGS for r in accuracy(name, dts)]
-    write("cloth_bdf2", {"accuracy": acc, "cost": cost(args.quick, args.rounds),
+    write("cloth_bdf2", {"accuracy": acc, "cost": cost(args.quick, args.rounds), "contact": contact(args.quick, args.rounds),
                          "swings": "released horizontal from rest, no damping, g 9.8, 1 s, float64, default settings; "
                                    "reference BDF2 at dt 1/1920; resolved 6x6: 0.2 m apart, 1 kg each, k 100, two "
                                    "corners pinned; stiff 16x16: 0.1 m apart, 1 kg in all, k 50, one corner pinned; "

@@ -92,3 +92,27 @@ def synthetic_walk(speed, cadence, phase, dtype, T=240, fps=60.0):
     root = np.stack([0 * t, 0.9 + 0.01 * np.cos(2 * w * t), speed * t], 1)
     return anim.Motion(skeleton=sk, rotations=rot.astype(dtype), root_positions=root.astype(dtype),
                        frame_time=1 / fps), stance
+
+
+def tilted_plane_cloth(theta_deg, mu):
+    """A 4x4 cloth lying on a plane tilted by ``theta_deg`` about z, friction ``mu`` (float64)."""
+    th = np.radians(theta_deg)
+    R = np.array([[np.cos(th), -np.sin(th), 0.0], [np.sin(th), np.cos(th), 0.0], [0.0, 0.0, 1.0]])
+    V = np.stack(np.meshgrid(np.arange(4) * 0.1, [0.0], np.arange(4) * 0.1, indexing="ij"), -1).reshape(-1, 3) @ R.T
+    plane = C.Plane(R @ np.array([0.0, 1.0, 0.0]), -1e-3, friction=mu)
+    return C.from_mesh(V, C.grid_triangles(3), stiffness=100.0, density=1.0, colliders=(plane,), dtype=np.float64)
+
+
+def check_friction_on_a_tilted_plane(integ, theta, mu=0.5):
+    """Coulomb's law under ``integ``: every step converges; below ``atan(mu)`` the cloth
+    comes to rest, above it it slides with acceleration ``g (sin - mu cos)`` within 5%."""
+    c = tilted_plane_cloth(theta, mu)
+    states, infos = C.rollout(c, C.State.at_rest(c), 1 / 60, 120, integ)
+    assert bool(jnp.all(infos.converged))
+    speed = np.linalg.norm(np.asarray(states.v), axis=-1).max(axis=-1)
+    if theta < np.degrees(np.arctan(mu)):
+        assert speed[-1] < 1e-3, speed[-1]
+    else:
+        th = np.radians(theta)
+        accel = (speed[-1] - speed[59]) / 1.0
+        np.testing.assert_allclose(accel, 9.8 * (np.sin(th) - mu * np.cos(th)), rtol=0.05)

@@ -16,6 +16,7 @@ from jaxsim import cloth as C
 from jaxsim.cloth import _step
 from jaxsim.cloth._implicit.bdf2 import MAX_RATIO, Before
 from jaxsim.cloth._layout import layout_of
+from _helpers import check_friction_on_a_tilted_plane
 
 jax.config.update("jax_enable_x64", True)
 
@@ -23,6 +24,7 @@ jax.config.update("jax_enable_x64", True)
 SCENE = C.grid(5, 0.2, stiffness=100.0, gravity=9.8, damping=0.0, dtype=np.float64)
 BDF = C.BDF2(linear_solver=C.Cholesky())
 BE = C.ImplicitEuler(linear_solver=C.Cholesky())
+BDF2_DEFAULT = C.BDF2()
 
 
 def _end(integ, dt, t_end=0.5):
@@ -108,6 +110,43 @@ def test_step_with_previous_equals_the_rollout():
     np.testing.assert_allclose(first.x, be.x, atol=1e-12)
 
 
+def test_resumed_bdf2_rollouts_equal_one_rollout():
+    """``resume`` carries BDF2's memory: 3 + 3 steps are the steps of one 6-step rollout
+    (without it the resumed chunk starts with a backward-Euler step); in a batch too."""
+    s0 = C.State.at_rest(SCENE)
+    whole, _ = C.rollout(SCENE, s0, 1 / 30, 6, BDF)
+    a, ia = C.rollout(SCENE, s0, 1 / 30, 3, BDF)
+    nxt = C.State(a.x[-1], a.v[-1])
+    b, ib = C.rollout(SCENE, nxt, 1 / 30, 3, BDF, resume=(a, ia))
+    np.testing.assert_allclose(b.x, whole.x[3:], atol=1e-12)
+    np.testing.assert_allclose(b.v, whole.v[3:], atol=1e-10)
+    bare, _ = C.rollout(SCENE, nxt, 1 / 30, 3, BDF)
+    assert float(jnp.max(jnp.abs(bare.x - whole.x[3:]))) > 1e-4
+    scenes = C.stack_scenes([SCENE, C.replace(SCENE, stiffness=SCENE.stiffness * 2.0)])
+    wb, _ = C.batch_rollout(scenes, s0, 1 / 30, 6, BDF)
+    ab, iab = C.batch_rollout(scenes, s0, 1 / 30, 3, BDF)
+    bb, _ = C.batch_rollout(scenes, C.State(ab.x[:, -1], ab.v[:, -1]), 1 / 30, 3, BDF, resume=(ab, iab))
+    np.testing.assert_allclose(bb.x, wb.x[:, 3:], atol=1e-12)
+    with pytest.raises(ValueError, match="positions of shape"):
+        C.rollout(SCENE, nxt, 1 / 30, 3, BDF, resume=(C.State(a.x[:2], a.v), ia))
+
+
+def test_a_resume_after_substeps_starts_with_backward_euler():
+    """A last step taken in substeps remembers its last substep, which ``states`` does not
+    hold: the resumed rollout's first step is then backward Euler's."""
+    stiff = C.grid(5, 0.2, mass=1 / 36, stiffness=1e4, gravity=9.8, damping=0.0, dtype=np.float64)
+    integ = dataclasses.replace(BDF, newton_iters=4, extrapolate=0, max_substep_depth=3, rtol=1e-12)
+    states, infos = C.rollout(stiff, C.State.at_rest(stiff), 1 / 30, 8, integ)
+    subs = np.asarray(infos.substeps)
+    k = int(np.flatnonzero(subs > 1)[0])  # chunk ends on a substepped step
+    chunk = jax.tree_util.tree_map(lambda t: t[: k + 1], (states, infos))
+    nxt = C.State(states.x[k], states.v[k])
+    b, ib = C.rollout(stiff, nxt, 1 / 30, 8, integ, resume=chunk)
+    first, info = C.step(stiff, nxt, 1 / 30, integ)  # no previous=: backward Euler
+    assert bool(ib.converged[0]) and bool(info.converged) and int(ib.substeps[0]) == int(info.substeps)
+    np.testing.assert_allclose(b.x[0], first.x, atol=1e-9)
+
+
 def test_bdf2_keeps_the_energy_backward_euler_damps():
     """Undamped swing, one second at 1/30 s: backward Euler's numerical damping takes
     much more of the energy than BDF2's."""
@@ -153,6 +192,84 @@ def test_bad_inputs():
         C.step(SCENE, s0, 1 / 30, BDF, previous=(s0.x, s0.v))
     with pytest.raises(ValueError, match="previous.x"):
         C.step(SCENE, s0, 1 / 30, BDF, previous=C.State(s0.x[:3], s0.v))
-    with_floor = C.replace(SCENE, colliders=(C.Plane(normal=(0.0, 1.0, 0.0), offset=0.0),))
-    with pytest.raises(ValueError, match="BDF2 does not support colliders"):
-        C.rollout(with_floor, C.State.at_rest(with_floor), 1 / 30, 2, BDF)
+    with pytest.raises(ValueError, match="colliders need ImplicitEuler"):
+        C.rollout(DRAPE(np.float64), C.State.at_rest(DRAPE(np.float64)), 1 / 30, 2, C.ExplicitEuler())
+
+
+# ---- with colliders ----
+
+def DRAPE(dtype, k=1e5, mu=0.2):
+    """A 4x4 cloth of 0.16 kg dropped onto a floor, a sphere and a capsule (with friction)."""
+    cols = (C.Plane(np.array([0.0, 1.0, 0.0]), 0.0, friction=mu), C.Sphere(np.array([0.0, 0.5, 0.0]), 0.3, friction=mu),
+            C.Capsule(np.array([-1.0, 0.2, 0.6]), np.array([1.0, 0.2, 0.6]), 0.15, friction=mu))
+    return C.grid(3, 0.1, origin=(-0.15, 1.0, -0.15), mass=0.01, stiffness=k, damping=0.01, gravity=9.8, pins=[],
+                  dtype=dtype, colliders=cols)
+
+
+def _distance(colliders, x):
+    x = jnp.asarray(np.asarray(x, np.float64).reshape(-1, 3))
+    return min(float(jnp.min(c.distance(x))) for c in colliders)
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_bdf2_drapes_onto_colliders(dtype):
+    """IPC contact under BDF2: every step converges, nothing enters a collider, no energy
+    is gained, and the cloth comes to rest on them, although BDF2's shifted base
+    ``x^n + b (x^n - x^{n-1})`` lies inside one on many steps (Newton starts from ``x^n``)."""
+    c = DRAPE(dtype)
+    s0 = C.State.at_rest(c)
+    for dt in (1 / 30, 1 / 240):  # data, so one compiled rollout
+        states, infos = C.rollout(c, s0, dt, 100, BDF2_DEFAULT)
+        assert bool(jnp.all(infos.converged)), (dt, np.asarray(infos.converged).mean())
+        x = np.asarray(states.x, np.float64)
+        assert _distance(c.colliders, x) >= 0.0, dt
+        base = x[1:] + (x[1:] - x[:-1]) / 3.0  # b = 1/3 at equal steps
+        assert _distance(c.colliders, base) < -1e-3, dt  # the case that needs the feasible start
+        e = jax.vmap(lambda xx, vv: C.total_energy(c, xx, vv))(states.x, states.v)
+        e0 = float(C.total_energy(c, s0.x, s0.v))
+        assert float(jnp.max(e)) <= e0 + 1e-6 * abs(e0), (float(jnp.max(e)), e0)
+    top = x[-1, :, 1]
+    assert top.min() > 0.0 and top.max() < 1.0
+
+
+def test_bdf2_friction_holds_below_atan_mu_and_slides_above():
+    for theta in (15.0, 40.0):
+        check_friction_on_a_tilted_plane(BDF2_DEFAULT, theta)
+
+
+def test_a_collider_out_of_reach_changes_no_bdf2_step():
+    """A floor 10 m below: the contact terms are all zero, so the rollout is the one
+    without colliders up to Newton's tolerance (it starts from ``x^n`` instead of the
+    extrapolation)."""
+    integ = dataclasses.replace(BDF, rtol=1e-13)
+    far = C.replace(SCENE, colliders=(C.Plane(np.array([0.0, 1.0, 0.0]), -10.0),))
+    s0 = C.State.at_rest(SCENE)
+    a, ia = C.rollout(far, s0, 1 / 30, 15, integ)
+    b, ib = C.rollout(SCENE, s0, 1 / 30, 15, integ)
+    assert bool(jnp.all(ia.converged)) and bool(jnp.all(ib.converged))
+    np.testing.assert_allclose(a.x, b.x, atol=1e-10)
+    np.testing.assert_allclose(a.v, b.v, atol=1e-8)
+    # and with the shifted problem's contact terms: not backward Euler's
+    be, _ = C.rollout(far, s0, 1 / 30, 15, dataclasses.replace(BE, rtol=1e-13))
+    assert float(jnp.max(jnp.abs(be.x - a.x))) > 1e-3
+
+
+@pytest.mark.slow
+def test_gradients_through_bdf2_contact():
+    """The implicit derivative of BDF2 steps with the barrier and friction: a cloth resting
+    on a sphere, d(positions after two steps)/d(sphere centre, stiffness)."""
+    c = C.grid(3, 0.1, origin=(-0.15, 0.85, -0.15), mass=0.01, stiffness=1e3, damping=0.01, gravity=9.8, pins=[],
+               dtype=np.float64, colliders=(C.Sphere(np.array([0.0, 0.5, 0.0]), 0.3, friction=0.3),))
+    s0 = C.State.at_rest(c)
+    for _ in range(10):  # drape (the compiled rollout of the gradient below)
+        states, _ = C.rollout(c, s0, 1 / 30, 2, BDF)
+        s0 = C.State(states.x[-1], states.v[-1])
+    assert _distance(c.colliders, s0.x) < float(c.contact_gap)  # in contact
+    weights = jnp.arange(1.0, 1.0 + 3 * c.num_particles).reshape(-1, 3)
+
+    def final_x(center, k):
+        sc = C.replace(c, colliders=(C.Sphere(center, 0.3, 0.3),), stiffness=1e3 * k * jnp.ones(c.num_springs))
+        out, info = C.rollout(sc, s0, 1 / 30, 2, BDF)
+        return jnp.sum(out.x[-1] * weights)
+
+    check_grads(final_x, (jnp.asarray([0.0, 0.5, 0.0]), jnp.asarray(1.0)), order=1, modes=("rev",), eps=1e-6)

@@ -10,7 +10,7 @@ from jax.test_util import check_grads
 
 from jaxsim import cloth as C
 from jaxsim.cloth._implicit import contact as _contact
-from _helpers import all_eqns, step_jaxpr
+from _helpers import all_eqns, check_friction_on_a_tilted_plane, step_jaxpr
 
 SPHERE_C = np.array([0.0, 0.5, 0.0])
 
@@ -168,28 +168,10 @@ def test_property_no_penetration(radius_y, sphere_x, dt, k):
 
 # ---- friction on a tilted plane ----
 
-def tilted(theta_deg, mu):
-    th = np.radians(theta_deg)
-    R = np.array([[np.cos(th), -np.sin(th), 0.0], [np.sin(th), np.cos(th), 0.0], [0.0, 0.0, 1.0]])
-    V = np.stack(np.meshgrid(np.arange(4) * 0.1, [0.0], np.arange(4) * 0.1, indexing="ij"), -1).reshape(-1, 3) @ R.T
-    plane = C.Plane(R @ np.array([0.0, 1.0, 0.0]), -1e-3, friction=mu)
-    return C.from_mesh(V, C.grid_triangles(3), stiffness=100.0, density=1.0, colliders=(plane,), dtype=np.float64)
-
-
 @pytest.mark.parametrize("theta", [15.0, 40.0])
 @pytest.mark.slow
 def test_friction_holds_below_atan_mu_and_slides_above(theta):
-    mu = 0.5
-    c = tilted(theta, mu)
-    states, infos = C.rollout(c, C.State.at_rest(c), 1 / 60, 120)
-    assert bool(jnp.all(infos.converged))
-    speed = np.linalg.norm(np.asarray(states.v), axis=-1).max(axis=-1)
-    if theta < np.degrees(np.arctan(mu)):
-        assert speed[-1] < 1e-3
-    else:
-        th = np.radians(theta)
-        accel = (speed[-1] - speed[59]) / 1.0
-        np.testing.assert_allclose(accel, 9.8 * (np.sin(th) - mu * np.cos(th)), rtol=0.05)
+    check_friction_on_a_tilted_plane(C.ImplicitEuler(), theta)
 
 
 # ---- what the compiled step holds ----

@@ -13,6 +13,7 @@ from jaxsim.cloth._implicit import problem as pr
 from jaxsim.cloth._model.energy import forces
 from jaxsim.cloth._explicit import damping_forces
 from jaxsim.cloth._implicit.extrapolate import SMOOTH_NEWTON, History, acceleration
+from jaxsim.cloth._implicit.resume import Resume
 from jaxsim.cloth._implicit.step import implicit
 
 DT = 1 / 60
@@ -252,7 +253,7 @@ def test_history_before_takes_the_known_velocities_and_the_forces_for_the_rest(c
     conv, iters = jnp.array(True), jnp.int32(1)
     for mode in (1, 2, "auto"):
         for T, (p1, p2) in ((0, (v1, v2)), (1, (v1, v2)), (2, (a.v[-2], None)), (3, (a.v[-2], a.v[-3]))):
-            h = History.before(c, s.x, s.v, DT, mode, None if T == 0 else (a.v[3 - T:], conv, iters))
+            h = History.before(c, s.x, s.v, DT, mode, None if T == 0 else Resume(a.v[3 - T:], conv, iters))
             np.testing.assert_allclose(np.asarray(h.v_prev), np.asarray(p1), rtol=0, atol=1e-12)
             if mode == 1:
                 assert h.d_prev is None and not h.jerk
@@ -267,9 +268,9 @@ def test_history_before_takes_the_known_velocities_and_the_forces_for_the_rest(c
     dv = np.max(np.abs(np.asarray(a.v[-2] - a.v[-3])))
     assert np.max(np.abs(np.asarray(v1 - a.v[-2]))) < 1e-2 * dv and np.max(np.abs(np.asarray(v2 - a.v[-3]))) < 1e-2 * dv
     # "auto": smooth only after a converged step of at most SMOOTH_NEWTON iterations
-    assert not bool(History.before(c, s.x, s.v, DT, "auto", (a.v, conv, jnp.int32(SMOOTH_NEWTON + 1))).jerk)
-    assert not bool(History.before(c, s.x, s.v, DT, "auto", (a.v, jnp.array(False), iters)).jerk)
-    assert bool(History.before(c, s.x, s.v, DT, 2, (a.v, jnp.array(False), iters)).jerk)
+    assert not bool(History.before(c, s.x, s.v, DT, "auto", Resume(a.v, conv, jnp.int32(SMOOTH_NEWTON + 1))).jerk)
+    assert not bool(History.before(c, s.x, s.v, DT, "auto", Resume(a.v, jnp.array(False), iters)).jerk)
+    assert bool(History.before(c, s.x, s.v, DT, 2, Resume(a.v, jnp.array(False), iters)).jerk)
 
 
 def test_bad_resumes_raise(chunks):

@@ -16,7 +16,7 @@ from .. import _sharding
 from .._dataclass import is_concrete
 from .._validate import check_bool, check_finite, check_int, check_positive, check_real
 from ._model.colliders import SCENE_FIELDS, collider_kinds, count_inside, describe_inside
-from ._integrators import ExplicitEuler, ImplicitEuler
+from ._integrators import BDF2, ExplicitEuler, ImplicitEuler
 from ._layout import batch_layout
 from ._model.scene import Cloth, State, frozen_ids
 from ._checks import check_inputs, check_resume
@@ -185,7 +185,7 @@ def batch_rollout(scenes, state: State, dt, n_steps: int, integrator=ImplicitEul
         check_real("dt", dt, minimum=0.0, strict=True)
     n_steps = check_int("n_steps", n_steps, 1)
     checkpoint = check_bool("checkpoint", checkpoint)
-    resume = check_resume(scenes, resume, batch=B)
+    resume = check_resume(scenes, resume, batch=B, bdf2=isinstance(integrator, BDF2))
     mesh = _sharding.batch_mesh(sharded, B)
     pad = 0
     if mesh is not None:

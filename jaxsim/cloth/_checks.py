@@ -11,8 +11,9 @@ import numpy as np
 
 from .._dataclass import is_concrete
 from .._validate import check_finite, check_real, check_shape
+from ._implicit.resume import Resume
 from ._info import StepInfo
-from ._integrators import BDF2, ExplicitEuler, ImplicitEuler
+from ._integrators import ExplicitEuler, ImplicitEuler
 from ._model.colliders import COLLIDERS, collider_kinds, count_inside, describe_inside
 from ._model.scene import Cloth, State
 
@@ -45,9 +46,6 @@ def check_inputs(cloth: Cloth, state: State, dt, integrator) -> State:
         raise ValueError("this scene is batched (from stack_scenes): use batch_rollout")
     if cloth.colliders and isinstance(integrator, ExplicitEuler):
         raise ValueError("colliders need ImplicitEuler: contact is a barrier in its incremental potential")
-    if cloth.colliders and isinstance(integrator, BDF2):
-        raise ValueError("BDF2 does not support colliders yet (its shifted start x^n + b (x^n - x^{n-1}) can lie "
-                         "inside one): use ImplicitEuler")
     out = [particle_array(name, a, cloth) for name, a in (("state.x", state.x), ("state.v", state.v))]
     if cloth.colliders and is_concrete(state.x) and is_concrete(*jax.tree_util.tree_leaves(cloth.colliders)):
         inside = count_inside(cloth.colliders, out[0], ~np.asarray(cloth.pinned))
@@ -103,11 +101,11 @@ def check_path(cloth: Cloth, colliders, n_steps: int):
     return jax.tree_util.tree_unflatten(want, leaves)
 
 
-def check_resume(cloth: Cloth, resume, batch: int | None = None):
-    """``(v (min(T, 3), N, 3), converged (), newton_iters ())`` of a previous rollout's
-    ``(states, infos)``: the last velocities, all that ``History.before`` reads, so the
-    compiled rollout does not depend on the previous one's length.  ``batch``: ``B``, a
-    previous ``batch_rollout``'s outputs (every shape with a leading ``(B,)`` axis)."""
+def check_resume(cloth: Cloth, resume, batch: int | None = None, bdf2: bool = False):
+    """The :class:`_implicit.resume.Resume` of a previous rollout's ``(states, infos)``,
+    or ``None``.  ``batch``: ``B``, a previous ``batch_rollout``'s outputs (every shape
+    with a leading ``(B,)`` axis); ``bdf2``: the rollout is BDF2's, which also reads the
+    state one step before the last."""
     if resume is None:
         return None
     what = "batch_rollout" if batch else "rollout"
@@ -127,5 +125,16 @@ def check_resume(cloth: Cloth, resume, batch: int | None = None):
         raise ValueError(f"resume's infos must have a leading {lead + (T,)} axis like its states")
     if is_concrete(v):
         check_finite("resume's states.v", v)
-    return (v[..., -3:, :, :].astype(cloth.dtype), jnp.asarray(infos.converged[..., -1]),
-            jnp.asarray(infos.newton_iters[..., -1]))
+    x_prev = whole = None
+    if bdf2 and T >= 2:
+        x = jnp.asarray(states.x)
+        if x.shape != v.shape:
+            raise ValueError(f"resume's states must have positions of shape {v.shape} like its velocities, got {x.shape}")
+        if is_concrete(x):
+            check_finite("resume's states.x", x)
+        if jnp.shape(infos.substeps) != lead + (T,):
+            raise ValueError(f"resume's infos.substeps must have a leading {lead + (T,)} axis like its states")
+        x_prev = x[..., -2, :, :].astype(cloth.dtype)
+        whole = jnp.asarray(infos.substeps[..., -1]) == 1
+    return Resume(v[..., -3:, :, :].astype(cloth.dtype), jnp.asarray(infos.converged[..., -1]),
+                  jnp.asarray(infos.newton_iters[..., -1]), x_prev, whole)

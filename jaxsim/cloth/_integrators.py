@@ -178,9 +178,10 @@ class BDF2(ImplicitEuler):
     settings, the extrapolated start, adaptive substeps, the implicit derivative) means
     the same here.  A rollout's first step, and a substep more than
     ``_implicit.bdf2.MAX_RATIO`` times longer than the one before, is a backward-Euler
-    step; ``step(..., previous=)`` gives it the state one step before.  ``rollout(resume=)``
-    does not carry that memory yet: a resumed rollout's first step is backward Euler.
-    Colliders are not supported yet (the shifted state may lie inside one): ``ValueError``.
+    step; ``step(..., previous=)`` gives it the state one step before, and
+    ``rollout(resume=)`` the previous rollout's last step.  With colliders the contact
+    terms are those of the step from ``x^n`` (the shifted state may lie inside one), and
+    Newton starts there.
     """
 
 

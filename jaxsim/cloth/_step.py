@@ -110,7 +110,9 @@ def _rollout(cloth, layout, state, dt, n_steps, integrator, checkpoint=False, pa
         f = jax.checkpoint(f, prevent_cse=False)
     prev0 = cloth.colliders if path is not None else None
     history = History.before(cloth, state.x, state.v, dt, integrator.extrapolate, resume, layout) if extrapolate else None
-    before = Before.none(state.x, state.v) if isinstance(integrator, BDF2) else None
+    before = None
+    if isinstance(integrator, BDF2):
+        before = Before.none(state.x, state.v) if resume is None else resume.before(state.x, state.v, dt)
     _, (states, infos) = lax.scan(f, (state, prev0, history, before), path, length=n_steps)
     return states, infos
 
@@ -145,7 +147,11 @@ def rollout(cloth: Cloth, state: State, dt, n_steps: int, integrator=ImplicitEul
         velocities before come from the forces at ``state``, which differ from the
         previous rollout's only through damping's frozen directions (and ``"auto"``
         takes the motion as smooth).  No effect where ``rollout`` does not extrapolate
-        (explicit Euler, ``extrapolate=0``, colliders).
+        (explicit Euler, ``extrapolate=0``, colliders), except with ``BDF2``: its memory
+        goes on from the previous rollout's last step (taken as a step of ``dt``) where
+        that step was taken whole, so chunks equal one long rollout; after a last step
+        taken in substeps (or a one-step rollout) the first step is backward Euler
+        (``_implicit.resume.Resume.before``).
 
     Returns:
       ``(states, infos)`` stacked over a leading ``(n_steps,)`` axis (``states.x`` is
@@ -154,7 +160,7 @@ def rollout(cloth: Cloth, state: State, dt, n_steps: int, integrator=ImplicitEul
     state = check_inputs(cloth, state, dt, integrator)
     n_steps = check_int("n_steps", n_steps, 1)
     path = check_path(cloth, colliders, n_steps)
-    resume = check_resume(cloth, resume)
+    resume = check_resume(cloth, resume, bdf2=isinstance(integrator, BDF2))
     layout = layout_of(cloth.springs, cloth.rest)
     return _rollout(cloth, layout, state, jnp.asarray(dt, cloth.dtype), n_steps, integrator,
                     check_bool("checkpoint", checkpoint), path, resume)

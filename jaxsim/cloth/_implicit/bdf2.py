@@ -15,6 +15,12 @@ Euler's incremental potential (17.19) with those three substituted, and the step
 before) is backward Euler itself, which starts a rollout.  Pinned particles have
 ``x^n = x^{n-1}`` and keep ``x_b = x^n`` exactly.
 
+With colliders the shifted base ``x_b`` may lie inside one, so the contact terms are
+those of the physical step (``_implicit.contact.build``'s ``at``): lagged at ``x^n``,
+Newton started from ``x^n`` (outside every collider, IPC's feasible start), friction
+measured on the motion ``x - x^n``, and every Newton step capped by the time of impact
+from the current iterate, as in backward Euler's step.
+
 Variable-step BDF2 is zero-stable for ``w < 1 + sqrt(2)``; a step more than
 ``MAX_RATIO`` times longer than the one before (a substep climbing back two levels at
 once, ``_implicit.substeps``) restarts with a backward-Euler step instead.
@@ -26,6 +32,7 @@ import jax
 import jax.numpy as jnp
 
 from ..._dataclass import pytree_dataclass
+from . import problem as pr
 
 #: The largest step ratio ``h / h_prev`` taken as a BDF2 step (below the zero-stability
 #: bound ``1 + sqrt(2)``); a longer step is a backward-Euler step.
@@ -72,3 +79,12 @@ def base(x, v, before: Before, h):
     b = w * w / (1.0 + 2.0 * w)
     beta = (1.0 + w) / (1.0 + 2.0 * w)
     return x + b * (x - before.x), v + b * (v - before.v), beta * h
+
+
+def step_problem(cloth, x, v, h, prev, layout, before: Before | None) -> pr.StepProblem:
+    """The problem of a (sub)step of ``h`` from ``(x, v)``: backward Euler's, or BDF2's with
+    its memory ``before`` (contact terms from the step's own start, module doc)."""
+    if before is None:
+        return pr.StepProblem.build(cloth, x, v, h, prev, layout)
+    xb, vb, hb = base(x, v, before, h)
+    return pr.StepProblem.build(cloth, xb, vb, hb, prev, layout, start=(x, h))

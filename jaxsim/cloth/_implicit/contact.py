@@ -80,7 +80,9 @@ class ContactTerms:
       normal: ``(C, N, 3)`` lagged unit normals.
       slide: ``(C, N, 3)`` surface motion over the step next to each particle (m).
       start: ``(N, 3)`` feasible start displacement (nonzero only where a moving collider
-        swept over a particle: it is pushed out to ``dhat / 2``).
+        swept over a particle: it is pushed out to ``dhat / 2``; BDF2's: back to ``x^n``).
+      shift: ``(N, 3)`` ``x_b - x^n``, the offset of the problem's base from the step's
+        start (BDF2's shifted state, ``_implicit.bdf2``), or ``None`` (backward Euler: 0).
     """
 
     kappa: jax.Array
@@ -90,6 +92,7 @@ class ContactTerms:
     normal: jax.Array
     slide: jax.Array
     start: jax.Array
+    shift: jax.Array | None = None
 
 
 def default_stiffness(cloth, h):
@@ -98,14 +101,19 @@ def default_stiffness(cloth, h):
     return (length(cloth.gravity) + dhat / h**2) / dhat
 
 
-def build(cloth, x0, h, free, prev=None) -> ContactTerms:
-    """Lagged terms for a step from ``x0 (N, 3)``; ``prev`` are the colliders at the start
-    of the step (default: the scene's, i.e. static)."""
+def build(cloth, x0, h, free, prev=None, at=None) -> ContactTerms:
+    """Lagged terms for a step of ``h`` (s) whose problem is built on ``x0 (N, 3)``.
+
+    ``prev``: the colliders at the start of the step (default: the scene's, i.e. static).
+    ``at``: the positions ``x^n`` at the start of the step where ``x0`` is not them
+    (BDF2's shifted base ``x_b``, which may lie inside a collider): the terms are lagged
+    at ``x^n``, Newton starts there, and friction's tangential motion is ``x - x^n``
+    relative to the surface, as in backward Euler's step."""
     cols = cloth.colliders
     prev = cols if prev is None else prev
     dhat = cloth.contact_gap
     kappa = default_stiffness(cloth, h) if cloth.contact_stiffness is None else cloth.contact_stiffness
-    x = x0
+    x = x0 if at is None else at
     for c in cols:  # a moving collider may have swept over particles: start outside it
         inside = ((c.distance(x) <= 0) & (free[:, 0] > 0))[:, None]
         x = jnp.where(inside, c.push_out(x, 0.5 * dhat), x)
@@ -118,11 +126,11 @@ def build(cloth, x0, h, free, prev=None) -> ContactTerms:
         nrm.append(c.normal_at(x))
         slide.append(c.surface_motion(c0, x))
     return ContactTerms(kappa=kappa, dhat=dhat, eps_h=FRICTION_EPS_V * h, lam=jnp.stack(lam), normal=jnp.stack(nrm),
-                        slide=jnp.stack(slide), start=(x - x0) * free)
+                        slide=jnp.stack(slide), start=(x - x0) * free, shift=None if at is None else x0 - at)
 
 
 def _tangential(ct: ContactTerms, k, u):
-    r = u - ct.slide[k]
+    r = (u if ct.shift is None else u + ct.shift) - ct.slide[k]
     n = ct.normal[k]
     return r - dot(r, n)[..., None] * n
 

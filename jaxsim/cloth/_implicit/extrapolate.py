@@ -51,9 +51,9 @@ class History:
         """The history before a rollout's first step from ``(x, v)`` (``(N, 3)``);
         ``mode``: ``ImplicitEuler.extrapolate``; ``layout``: the scene's (``_layout``).
 
-        ``resume``: ``(v (T, N, 3), converged (), newton_iters ())`` of the previous
-        rollout (its last ``T <= 3`` velocities and its last step's diagnostics), whose
-        velocities are used where known, so that the rollout starts where the same
+        ``resume``: the previous rollout's :class:`_implicit.resume.Resume` (its last
+        ``T <= 3`` velocities and its last step's diagnostics), whose velocities are used
+        where known, so that the rollout starts where the same
         rollout, one step longer, would have.  The velocities not known are those of the
         backward-Euler motion that ends at ``(x, v)``: ``v^{n-1} = v - h a(x, v)`` and
         ``v^{n-2} = v^{n-1} - h a(x - h v, v^{n-1})`` (:func:`acceleration`).  So a bare
@@ -62,15 +62,15 @@ class History:
         a smoothly moving cloth one Newton iteration from the first step on, as in a long
         rollout, instead of three and two on the first two steps.  From rest (``a = g``
         on free particles) it is ``x^0 + h^2 g``."""
-        known = 0 if resume is None else resume[0].shape[0]
-        v_prev = resume[0][-2] if known >= 2 else v - h * acceleration(cloth, x, v, layout)
+        known = 0 if resume is None else resume.v.shape[0]
+        v_prev = resume.v[-2] if known >= 2 else v - h * acceleration(cloth, x, v, layout)
         if mode == 1:
             return History(v_prev)
-        v_prev2 = resume[0][-3] if known >= 3 else v_prev - h * acceleration(cloth, x - h * v, v_prev, layout)
+        v_prev2 = resume.v[-3] if known >= 3 else v_prev - h * acceleration(cloth, x - h * v, v_prev, layout)
         if mode == 2 or resume is None:
             smooth = jnp.array(True)
         else:
-            smooth = resume[1] & (resume[2] <= SMOOTH_NEWTON)
+            smooth = resume.converged & (resume.newton_iters <= SMOOTH_NEWTON)
         return History(v_prev, v_prev - v_prev2, smooth)
 
     @property

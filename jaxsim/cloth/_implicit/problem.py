@@ -74,12 +74,16 @@ class StepProblem:
     contact: ct.ContactTerms | None = None
 
     @staticmethod
-    def build(cloth: Cloth, x0, v0, h, prev_colliders=None, layout: Layout | None = None) -> "StepProblem":
+    def build(cloth: Cloth, x0, v0, h, prev_colliders=None, layout: Layout | None = None,
+              start=None) -> "StepProblem":
         """Derive the per-step terms (differentiable in every input).
 
         ``prev_colliders``: the colliders at the start of the step when they move (the
         scene holds those at its end); default static.  ``layout``: the scene's
-        (``_layout.layout_of``, built here when ``None``)."""
+        (``_layout.layout_of``, built here when ``None``).  ``start``: ``(x^n (N, 3),
+        step ())`` where the problem is not built on the step's own start and length
+        (BDF2's, ``_implicit.bdf2.step_problem``): the contact terms are those of the
+        step from ``x^n`` over ``step`` seconds (``_implicit.contact.build``)."""
         layout = layout_of(cloth.springs, cloth.rest) if layout is None else layout
         if not cloth.damped:
             cloth = dataclasses.replace(cloth, damping=jnp.zeros((), x0.dtype))
@@ -91,7 +95,8 @@ class StepProblem:
             e0 = jnp.where(ok, d0 / jnp.where(ok, l0[:, None], 1.0), 0.0)  # as en.spring_directions
         contact = None
         if cloth.colliders:
-            contact = ct.build(cloth, x0, h, free_mask(cloth, x0.dtype), prev_colliders)
+            at, step = (None, h) if start is None else start
+            contact = ct.build(cloth, x0, step, free_mask(cloth, x0.dtype), prev_colliders, at)
         return StepProblem(cloth, layout, x0, v0, h, d0, l0, l0 - cloth.rest_length,
                            h * layout.diff(cloth.springs, v0), e0, contact)
 

@@ -37,8 +37,7 @@ def _whole(cloth: Cloth, state: State, dt, integ: ImplicitEuler, prev, start, ti
     """:func:`implicit` on the whole step."""
     x0, v0, h = state.x, state.v, dt
     valid = valid_inputs(cloth, dt)
-    xb, vb, hb = (x0, v0, h) if before is None else bdf2.base(x0, v0, before, h)
-    p = pr.StepProblem.build(cloth, xb, vb, hb, prev, layout)
+    p = bdf2.step_problem(cloth, x0, v0, h, prev, layout, before)
     rtol = integ.resolved_rtol(x0.dtype)
     p_const = jax.tree_util.tree_map(lax.stop_gradient, p)
     if start is not None and p.contact is None:  # contact starts from x^n or its push-out

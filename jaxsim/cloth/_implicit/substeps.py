@@ -127,14 +127,6 @@ def _trailing_zeros(n):
     return lax.population_count((n & -n) - 1)
 
 
-def _problem(cloth, x, v, h, prev, layout, before):
-    """The step problem of a (sub)step of ``h`` from ``(x, v)``: backward Euler's, or BDF2's
-    with its memory ``before``."""
-    if before is not None:
-        x, v, h = bdf2.base(x, v, before, h)
-    return pr.StepProblem.build(cloth, x, v, h, prev, layout)
-
-
 def _acceleration(w, p, x, v, h, g, euler: bool):
     """``(N, 3)`` the acceleration ``a`` of the start ``w`` of the step problem ``p`` from
     ``(x, v)`` over ``h``: its positions are ``x + h v + h^2 a`` (m/s^2)."""
@@ -160,7 +152,7 @@ def search(cloth, x0, v0, h, integ, rtol, prev, layout, start, tight, before):
         size = jnp.left_shift(1, D - c.level)
         hk = h * (size.astype(dtype) / 2**D)
         ck, pk = substep_scene(cloth, prev, c.pos, size, D)
-        p = _problem(ck, c.x, c.v, hk, pk, layout, c.before)
+        p = bdf2.step_problem(ck, c.x, c.v, hk, pk, layout, c.before)
         w0, accel = None, c.accel
         if start is not None and p.contact is None:
             if before is None:
@@ -222,7 +214,7 @@ def replay(cloth, x0, v0, h, integ, prev, layout, found: SubstepLoop, before=Non
         size = jnp.left_shift(1, D - level)
         hk = h * (size.astype(x.dtype) / 2**D)
         ck, pk = substep_scene(cloth, prev, pos, size, D)
-        p = _problem(ck, x, v, hk, pk, layout, mem)
+        p = bdf2.step_problem(ck, x, v, hk, pk, layout, mem)
         x1, v1 = advance(p, solution(integ, w, p))
         return x1, v1, pos + size, None if mem is None else bdf2.Before(x, v, hk)
 
