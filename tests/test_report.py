@@ -27,6 +27,7 @@ def test_quick_report(tmp_path):
     check_tables_and_figures(report)
     check_fabrik_fewer_iterations_than_ccd_on_lab_circle(report)
     check_implicit_stable_where_explicit_is_not(report)
+    check_bdf2_beside_backward_euler(report)
     check_humanoid_fabrik_ahead_of_ccd(report)
     # every file the run wrote is listed as its own: a second run may overwrite them
     from jaxsim._cli import _out
@@ -72,6 +73,19 @@ def check_implicit_stable_where_explicit_is_not(report):
     (_, ex_unstable), (_, im_unstable) = counts["explicit Euler (1 substep)"], counts["implicit Euler (Newton + line search)"]
     assert ex_unstable > 0 and im_unstable == 0
     assert "k = 1e4, dt = 1/30: explicit unstable, implicit stable" in text
+
+
+def check_bdf2_beside_backward_euler(report):
+    """BDF2 is in the Pareto table and the stability map: never unstable there, and with a
+    fraction of backward Euler's physical error at the same CG tolerance."""
+    _, text, _ = report
+    cells = re.findall(r"\| lab cloth 11x11 \| BDF2 \(Newton \+ line search\) \| (\d+) \| (\d+) \| (\d+) \| (\d+) \|", text)
+    assert len(cells) == 1 and int(cells[0][3]) == 0 and int(cells[0][0]) > 0, cells
+    rows = tables_after(text, "## Cloth 1.")
+    head, data = rows[0], rows[1:]
+    col = next(i for i, h in enumerate(head) if h.startswith("physical error"))
+    err = {r[1]: float(r[col]) for r in data if r[0] == "lab cloth 11x11" and r[col] != "unstable"}
+    assert err["BDF2 CG tol 1e-06"] < 0.25 * err["implicit CG tol 1e-06"], err
 
 
 def check_humanoid_fabrik_ahead_of_ccd(report):

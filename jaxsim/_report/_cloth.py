@@ -26,6 +26,8 @@ def _last(states):
 
 
 def pareto(doc: Doc) -> None:
+    from matplotlib.ticker import NullFormatter
+
     quick = doc.quick
     scenes = {"lab cloth 11x11": C.lab_cloth()}
     if not quick:  # quick mode: the lab cloth only
@@ -58,6 +60,7 @@ def pareto(doc: Doc) -> None:
         if not quick:  # quick mode: no dense solve (its compile dominates the quick run)
             methods += [("implicit dense, converged", "dense", C.ImplicitEuler(linear_solver=C.Cholesky()))]
         methods += [(f"implicit CG tol {t:.0e}", "CG", C.ImplicitEuler(linear_solver=C.CG(tol=t))) for t in cg_tols]
+        methods += [(f"BDF2 CG tol {t:.0e}", "BDF2", C.BDF2(linear_solver=C.CG(tol=t))) for t in cg_tols[-2:]]
         for k, (label, family, integ) in enumerate(methods):
             doc.progress(f"cloth 1/4: {name}: {label} ({k + 1}/{len(methods)})")
             (states, infos), sec = _time_rollout(c, s30, dt, T, integ)
@@ -68,18 +71,19 @@ def pareto(doc: Doc) -> None:
                          "phys_err": float(jnp.max(jnp.abs(states.x[-1] - ref.x))) if stable else np.inf,
                          "stable": stable, "ref_err": ref_err})
         for r_, key, ax in ((0, "phys_err", axes[0, col]), (1, "solver_err", axes[1, col])):
-            for fam, color in (("explicit", "C2"), ("one-Newton", "C1"), ("dense", "C4"), ("CG", "C0")):
+            for fam, color in (("explicit", "C2"), ("one-Newton", "C1"), ("dense", "C4"), ("CG", "C0"), ("BDF2", "C3")):
                 pts = [r for r in rows if r["scene"] == name and r["family"] == fam and np.isfinite(r[key])]
                 if pts:
                     ax.loglog([p["ms"] for p in pts], [max(p[key], 1e-17) for p in pts], "-o", ms=4, color=color, label=fam)
                     for p in pts:
-                        tag = p["method"].split()[-1] if fam in ("explicit", "CG") else ""
+                        tag = p["method"].split()[-1] if fam in ("explicit", "CG", "BDF2") else ""
                         ax.annotate(tag, (p["ms"], max(p[key], 1e-17)), fontsize=5, xytext=(2, 2), textcoords="offset points")
             if key == "phys_err":
                 ax.axhline(ref_err, color="0.5", ls=":", label="reference's own error")
             ax.set_title(f"{name}: {f'physical error at t = {horizon}' if key == 'phys_err' else 'solver error, one step'}", fontsize=8)
             ax.set_xlabel("run time per step (ms)")
             ax.set_ylabel("max position error (m)")
+            ax.xaxis.set_minor_formatter(NullFormatter())  # a narrow log range labels its minor ticks on top of each other
             ax.legend(fontsize=6)
     fig.tight_layout()
     doc.figure(fig, "cloth_pareto.png", f"Cloth: error against run time per step (top: physical error over {horizon}; bottom: solver error of one step)")
@@ -93,13 +97,20 @@ def pareto(doc: Doc) -> None:
         best = min(rs, key=lambda r: r["phys_err"])
         cheap = min(rs, key=lambda r: r["ms"])
         ref_err = rs[0]["ref_err"]
-        imp = [r for r in rs if r["family"] != "explicit"]
+        imp = [r for r in rs if r["family"] not in ("explicit", "BDF2")]
         spread = (max(r["phys_err"] for r in imp) / max(min(r["phys_err"] for r in imp), 1e-30)) if imp else np.nan
         text.append(f"*{name}*: the most accurate over {horizon} is {best['method']} ({best['phys_err']:.1e} m, "
                     f"{best['ms']:.2f} ms/step; reference error {ref_err:.1e} m); the cheapest stable one is {cheap['method']} "
-                    f"({cheap['ms']:.3f} ms/step, {cheap['phys_err']:.1e} m).  All implicit variants sit within a factor "
-                    f"{spread:.1f} of each other in physical error: backward Euler's own O(dt) damping dominates, so a "
+                    f"({cheap['ms']:.3f} ms/step, {cheap['phys_err']:.1e} m).  All backward-Euler variants sit within a "
+                    f"factor {spread:.1f} of each other in physical error: its own O(dt) damping dominates, so a "
                     "loose CG tolerance or a single Newton step costs little accuracy in motion while it cuts the time.")
+        bdf = [r for r in rs if r["family"] == "BDF2"]
+        be = [r for r in imp if r["family"] == "CG"]
+        if bdf and be:
+            b, e = min(bdf, key=lambda r: r["phys_err"]), min(be, key=lambda r: r["phys_err"])
+            text.append(f"BDF2 ({b['method']}), second order on the same Newton solve, has {b['phys_err'] / e['phys_err']:.2f}x "
+                        f"the physical error of backward Euler's best CG run ({b['phys_err']:.1e} against "
+                        f"{e['phys_err']:.1e} m) at {b['ms'] / e['ms']:.2f}x its time per step.")
     doc.md("**Which wins where.**  " + "  ".join(text) + "  Explicit Euler wins when high accuracy is wanted and the "
            "scene is soft enough for few substeps; implicit Euler wins whenever the explicit step would need many "
            "substeps for stability (stiff springs, large dt, see the stability map), and for solver accuracy at fixed "
@@ -124,7 +135,8 @@ def stability_map(doc: Doc) -> None:
     scenes = {"lab cloth 11x11": C.lab_cloth()}
     if not quick:  # quick mode: the lab cloth only
         scenes["24x24 grid"] = C.grid(23, 0.2)
-    integs = {"explicit Euler (1 substep)": C.ExplicitEuler(substeps=1), "implicit Euler (Newton + line search)": C.ImplicitEuler()}
+    integs = {"explicit Euler (1 substep)": C.ExplicitEuler(substeps=1), "implicit Euler (Newton + line search)": C.ImplicitEuler(),
+              "BDF2 (Newton + line search)": C.BDF2()}
     doc.md("## Cloth 2. Stability map",
            f"{steps} steps from rest for every stiffness k and time step dt.  **unstable**: a step was rejected "
            "(`StepInfo.stable` False: non-finite or flown off) ; **energy growth**: stable, but the total energy rose "
@@ -190,12 +202,17 @@ def stability_map(doc: Doc) -> None:
     for sname in scenes:
         cell = {r["integrator"].split()[0]: r["class"] for r in rows
                 if r["scene"] == sname and r["k"] == 1e4 and abs(r["dt"] - 1 / 30) < 1e-12}
-        doc.md(f"{sname}, k = 1e4, dt = 1/30: explicit {cell['explicit']}, implicit {cell['implicit']}.")
+        doc.md(f"{sname}, k = 1e4, dt = 1/30: explicit {cell['explicit']}, implicit {cell['implicit']}, BDF2 {cell['BDF2']}.")
     ex = [r for r in rows if r["integrator"].startswith("explicit") and r["scene"].startswith("lab")]
     agree = sum((r["class"] == "unstable") == (r["dt"] > r["explicit_limit"]) for r in ex)
+    unstable = {i: sum(r["class"] == "unstable" for r in rows if r["integrator"] == i) for i in integs}
+    growth = {i: sum(r["class"] == "energy growth" for r in rows if r["integrator"] == i) for i in integs}
+    im, bd = "implicit Euler (Newton + line search)", "BDF2 (Newton + line search)"
     doc.md(f"On the lab cloth the explicit map agrees with the linear limit 2/omega_max in {agree} of {len(ex)} cells "
-           "(the limit is computed at rest; a sagging, stretched cloth has slightly different frequencies).  Implicit "
-           "Euler is never unstable on these maps.")
+           "(the limit is computed at rest; a sagging, stretched cloth has slightly different frequencies).  Unstable "
+           f"cells: implicit Euler {unstable[im]}, BDF2 {unstable[bd]} of {len(rows) // len(integs)}; energy growth: "
+           f"implicit Euler {growth[im]}, BDF2 {growth[bd]} (BDF2 damps far less, so it keeps energy backward Euler "
+           "takes away, and is not guaranteed to lose it).")
 
 
 def stress(doc: Doc) -> None:
