@@ -123,6 +123,18 @@ def bdf2_table():
     return "\n".join(out)
 
 
+def vbd_table():
+    d = load("cloth_vbd")
+    out = ["| drape | solver | dtype | substeps/frame | wall s per simulated s | CPU s per simulated s | stable | "
+           "closest approach (m) | converged |", "|---|---|---|---|---|---|---|---|---|"]
+    for r in d["rows"]:
+        conv = f"{100 * r['converged_share']:.0f}%" if "converged_share" in r else ""
+        out.append(f"| {r['n']}x{r['n']} | {r['solver']} | {r['dtype']} | {r['substeps_per_frame']} | "
+                   f"{r['wall_s_per_sim_s']:.2f} | {r['cpu_s_per_sim_s']:.2f} | {'yes' if r['stable'] else 'no'} | "
+                   f"{r['closest_m']:.1e} | {conv} |")
+    return "\n".join(out)
+
+
 def scaling_table():
     d = load("scaling")
     out = ["| forced host devices | IK M solves/s (100k targets) | IK speed-up | IK weak-scaling efficiency | "
@@ -164,7 +176,7 @@ def headline_table():
                      + [f"| {a} | {b} | `{c}.json` ({load(c)['timestamp'][:10]}) |" for a, b, c in rows])
 
 
-TABLES = {"headline": headline_table, "ik": ik_table, "stability": stability_table, "cloth": cloth_table, "scaling": scaling_table,
+TABLES = {"vbd": vbd_table, "headline": headline_table, "ik": ik_table, "stability": stability_table, "cloth": cloth_table, "scaling": scaling_table,
           "substeps": substeps_table, "bdf2": bdf2_table}
 _ROOT = os.path.join(os.path.dirname(RESULTS), os.pardir)
 GUIDES = (os.path.join(_ROOT, "docs", "performance.md"), os.path.join(_ROOT, "README.md"))
