@@ -11,3 +11,9 @@ def with_fast_compile(env: dict) -> dict:
     """A copy of ``env`` whose ``XLA_FLAGS`` add :data:`FAST_COMPILE_FLAGS`."""
     flags = " ".join(f for f in (env.get("XLA_FLAGS", ""), FAST_COMPILE_FLAGS) if f)
     return dict(env, XLA_FLAGS=flags)
+
+
+#: The same two options at XLA:CPU's defaults, as ``compiler_options`` for one compile
+#: (``_helpers.as_users_compile``): a test that compares two programs bit for bit compiles
+#: them as users' code is, where the legacy emitters may group a sum apart.
+USERS_COMPILER_OPTIONS = {"xla_backend_optimization_level": 2, "xla_cpu_use_fusion_emitters": True}

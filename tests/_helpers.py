@@ -24,6 +24,14 @@ def random_unit_quaternions(rng, shape):
     return q / np.linalg.norm(q, axis=-1, keepdims=True)
 
 
+def as_users_compile(fn, *args):
+    """``jax.jit(fn)`` compiled for ``args`` with XLA:CPU's default options (the suite's
+    processes compile with faster ones, ``_compile_flags``), called on ``args``."""
+    from _compile_flags import USERS_COMPILER_OPTIONS
+
+    return jax.jit(fn).lower(*args).compile(compiler_options=USERS_COMPILER_OPTIONS)(*args)
+
+
 def all_eqns(jaxpr):
     """Every equation of ``jaxpr``, those of its sub-jaxprs (scan, cond, while) included."""
     for eqn in jaxpr.eqns:

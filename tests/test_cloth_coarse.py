@@ -12,7 +12,7 @@ from jaxsim.cloth._implicit.hessian import block_jacobi, particle_blocks
 from jaxsim.cloth._layout import PlanarLayout, batch_layout, layout_of, spring_sum
 from jaxsim.cloth._layout import aggregates as agg
 
-from _helpers import stiff_grid
+from _helpers import as_users_compile, stiff_grid
 
 
 def aggregates(c):
@@ -204,15 +204,15 @@ def test_newton_trace_logs_every_iteration_and_changes_nothing():
     out = {}
     for trace in (False, True):
         integ = C.ImplicitEuler(linear_solver=C.CG(), trace=trace, max_substep_depth=0)  # a trace of one solve
-        out[trace] = jax.jit(lambda s, integ=integ: C.rollout(c, s, 1 / 30, 2, integ))(s0)
+        out[trace] = as_users_compile(lambda s, integ=integ: C.rollout(c, s, 1 / 30, 2, integ), s0)
     (x0, i0), (x1, i1) = out[False], out[True]
     assert i0.trace is None
-    # the same iterations; the same positions to the last bit in users' compiled code, to
-    # rounding here (the suite's legacy fusion emitters group the two programs' sums apart)
-    np.testing.assert_allclose(x0.x, x1.x, rtol=0, atol=1e-14)
-    for name in ("newton_iters", "cg_iters", "backtracks"):
+    # the same iterations and positions to the last bit, compiled as users' code is (the
+    # suite's legacy fusion emitters group the two programs' sums apart, and this stiff
+    # step's CG counts follow the rounding)
+    np.testing.assert_array_equal(x0.x, x1.x)
+    for name in ("newton_iters", "cg_iters", "backtracks", "rel_grad"):
         np.testing.assert_array_equal(getattr(i0, name), getattr(i1, name))
-    np.testing.assert_allclose(i0.rel_grad, i1.rel_grad, rtol=0, atol=1e-14)  # both at the 1e-12 level
     t = i1.trace
     assert t.rel.shape == (2, 20)
     for k in range(2):

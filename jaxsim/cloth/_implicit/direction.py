@@ -33,7 +33,7 @@ class Direction:
       cg: ``()`` int32 PCG iterations (0 for Cholesky), summed over the Hessians tried.
       res: ``()`` relative residual of the solve (``inf`` if it broke down).
       indefinite: ``()`` bool, the solve found its Hessian indefinite; ``None`` on the
-        direction chosen (:func:`first_definite`), whose ``hessian`` says which it is.
+        direction chosen, whose ``hessian`` says which it is.
       hessian: ``()`` int32 which Hessian gave ``dx`` (index into ``trace.HESSIANS``).
     """
 
@@ -98,37 +98,77 @@ def assembled(sv: NewtonSetup, A, C, inertia=1.0):
 
 
 def cg(sv: NewtonSetup, b, hvp, guess, Minv, tol, indefinite=False) -> Direction:
-    """PCG on ``ops.restricted(hvp)`` in its layout; ``b``, ``guess`` and ``dx`` ``(N, 3)``."""
+    """PCG on ``ops.restricted(hvp)`` in its layout; ``b``, ``guess`` and ``dx`` ``(N, 3)``;
+    ``indefinite``: a bool or a traced ``()`` bool (``linsolve.pcg``)."""
     ops = sv.ops
     dx, k, res, broke = pcg(ops.restricted(hvp), ops.to_cg(b), ops.to_cg(guess * sv.free), Minv, tol=tol,
                             max_iters=sv.linear.max_iters, indefinite=indefinite)
     return Direction(ops.from_cg(dx), k, jnp.where(jnp.isfinite(res), res, jnp.inf), broke, jnp.int32(0))
 
 
-def first_definite(*tries) -> Direction:
-    """The first direction of ``tries`` (thunks returning a :class:`Direction`) whose
-    Hessian was not found indefinite, the last one regardless, with the index of that try
-    as ``hessian``; PCG iterations summed over the tries run.  ``project_psd="auto"`` has
-    three tries (exact, shifted, clamped), the other settings one."""
-    d = tries[0]()
-    chosen = dataclasses.replace(d, indefinite=None)
-    if len(tries) == 1:
-        return chosen
-
-    def rest():
-        d2 = first_definite(*tries[1:])
-        return dataclasses.replace(d2, cg=d.cg + d2.cg, hessian=d2.hessian + 1)
-
-    return lax.cond(d.indefinite, rest, lambda: chosen)
+def _chosen(d: Direction) -> Direction:
+    """``d`` as the iteration's direction: a setting with one Hessian has nothing to retry."""
+    return dataclasses.replace(d, indefinite=None)
 
 
-def stationary(sv: NewtonSetup, b, parts: HessianParts, guess, tol) -> Direction:
-    """The exact Hessian solved through negative curvature (``hessian`` 3: a stationary point)."""
-    if sv.dense:
-        d = dense(sv, b, assembled(sv, parts.exact, parts.contact), indefinite=True)
-    else:
-        d = cg(sv, b, sv.ops.hvp(parts.exact, parts.contact), guess, parts.precond, tol, indefinite=True)
-    return dataclasses.replace(d, indefinite=None, hessian=jnp.int32(3))
+#: ``project_psd="auto"``'s Hessians, by their index in ``trace.HESSIANS``: the exact
+#: spring blocks, the same plus ``SHIFT M / h^2``, every block clamped PSD, and the exact
+#: blocks solved through negative curvature for a stationary point.
+EXACT, SHIFTED, CLAMPED, STATIONARY = range(4)
+
+
+def _retries(first: Direction, solve) -> Direction:
+    """``first`` (a solve on the exact Hessian), or where it found that Hessian indefinite
+    the first definite of ``solve(SHIFTED)`` and ``solve(CLAMPED)`` (the last regardless):
+    one bounded loop around one solve whose Hessian is chosen by the traced index, so one
+    copy of the retried solver is compiled, not one a Hessian, and under ``vmap`` a retry
+    runs only while some element needs it.  ``hessian`` says which Hessian gave ``dx``;
+    the PCG iterations of every solve run are summed."""
+    def body(c):
+        k, prev = c
+        d = solve(k + 1)
+        return k + 1, dataclasses.replace(d, cg=prev.cg + d.cg)
+
+    def retry():
+        k, d = lax.while_loop(lambda c: c[1].indefinite & (c[0] < CLAMPED), body, (jnp.int32(EXACT), first))
+        return Direction(d.dx, d.cg, d.res, None, k)
+
+    return lax.cond(first.indefinite, retry, lambda: _chosen(first))
+
+
+def _auto_hessian(parts: HessianParts, k, dtype):
+    """``(spring blocks, inertia factor)`` of ``"auto"``'s retried Hessian ``k`` (traced)."""
+    return jnp.where(k == CLAMPED, parts.psd, parts.exact), jnp.where(k == SHIFTED, 1.0 + SHIFT, 1.0).astype(dtype)
+
+
+def auto_cg(sv: NewtonSetup, b, parts: HessianParts, guess, tol, stationary=False) -> Direction:
+    """``project_psd="auto"`` by PCG: the exact Hessian, solved through negative curvature
+    for a stationary point where ``stationary`` (a ``()`` bool), else the first definite
+    of exact, shifted and clamped."""
+    def solve(k):
+        A, inertia = _auto_hessian(parts, k, sv.dtype)
+        return cg(sv, b, sv.ops.hvp(A, parts.contact, inertia), guess, parts.precond, tol)
+
+    first = cg(sv, b, sv.ops.hvp(parts.exact, parts.contact), guess, parts.precond, tol, indefinite=stationary)
+    first = dataclasses.replace(first, indefinite=first.indefinite & ~stationary,
+                                hessian=jnp.where(stationary, STATIONARY, EXACT).astype(jnp.int32))
+    return _retries(first, solve)
+
+
+def auto_dense(sv: NewtonSetup, b, parts: HessianParts) -> Direction:
+    """``project_psd="auto"`` by Cholesky: the first definite of exact, shifted and clamped."""
+    def solve(k):
+        A, inertia = _auto_hessian(parts, k, sv.dtype)
+        return dense(sv, b, assembled(sv, A, parts.contact, inertia))
+
+    return _retries(dense(sv, b, assembled(sv, parts.exact, parts.contact)), solve)
+
+
+def stationary(sv: NewtonSetup, b, parts: HessianParts) -> Direction:
+    """The exact Hessian solved densely through negative curvature (LU; ``hessian`` 3: a
+    stationary point).  PCG takes this solve in :func:`auto_cg`."""
+    d = dense(sv, b, assembled(sv, parts.exact, parts.contact), indefinite=True)
+    return dataclasses.replace(d, indefinite=None, hessian=jnp.int32(STATIONARY))
 
 
 def minimising(sv: NewtonSetup, w, b, parts: HessianParts, guess, tol) -> Direction:
@@ -136,19 +176,15 @@ def minimising(sv: NewtonSetup, w, b, parts: HessianParts, guess, tol) -> Direct
     definite one of exact, shifted and clamped with ``"auto"``)."""
     projection, ops = sv.integ.project_psd, sv.ops
     if sv.dense and projection is False:
-        return first_definite(lambda: dense(sv, b, jax.hessian(sv.objective)(w).reshape(3 * sv.N, 3 * sv.N)))
-    A_exact, A_psd, C, Minv = parts.exact, parts.psd, parts.contact, parts.precond
+        return _chosen(dense(sv, b, jax.hessian(sv.objective)(w).reshape(3 * sv.N, 3 * sv.N)))
+    A_psd, C, Minv = parts.psd, parts.contact, parts.precond
     if sv.dense:
         if projection is True:
-            return first_definite(lambda: dense(sv, b, assembled(sv, A_psd, C)))
-        return first_definite(lambda: dense(sv, b, assembled(sv, A_exact, C)),
-                              lambda: dense(sv, b, assembled(sv, A_exact, C, 1.0 + SHIFT)),
-                              lambda: dense(sv, b, assembled(sv, A_psd, C)))
+            return _chosen(dense(sv, b, assembled(sv, A_psd, C)))
+        return auto_dense(sv, b, parts)
     if projection is True:
-        return first_definite(lambda: cg(sv, b, ops.hvp(A_psd, C), guess, Minv, tol))
+        return _chosen(cg(sv, b, ops.hvp(A_psd, C), guess, Minv, tol))
     if projection is False:  # the exact Hessian, through the autodiff Hessian-vector product
         hvp = lambda v: ops.to_cg(jax.jvp(sv.grad, (w,), (ops.from_cg(v),))[1])  # noqa: E731
-        return first_definite(lambda: cg(sv, b, hvp, guess, Minv, tol))
-    return first_definite(lambda: cg(sv, b, ops.hvp(A_exact, C), guess, Minv, tol),
-                          lambda: cg(sv, b, ops.hvp(A_exact, C, 1.0 + SHIFT), guess, Minv, tol),
-                          lambda: cg(sv, b, ops.hvp(A_psd, C), guess, Minv, tol))
+        return _chosen(cg(sv, b, hvp, guess, Minv, tol))
+    return auto_cg(sv, b, parts, guess, tol)

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
-
 import jax
 import jax.numpy as jnp
 from jax import lax
@@ -45,10 +43,12 @@ def first_step(sv: NewtonSetup, w, dx):
 def line_search(sv: NewtonSetup, w, gw, gvec, dx, full=False) -> Trial:
     """Backtrack from ``w`` (objective ``gw``, gradient ``gvec``) along ``dx``.
 
-    The first trial is evaluated with its gradient and spring terms (one pass over the
-    springs), which are the Newton loop's next ones whenever the full step is accepted;
-    after a halving they are computed once at the accepted point.  ``full``: ``()`` bool,
-    take the first trial as it is (a stationary-point step)."""
+    Every trial is evaluated with its gradient and spring terms (one pass over the
+    springs), which are the Newton loop's next ones at the accepted trial.  The first
+    trial is evaluated before the loop (most searches end there), the halved ones in it:
+    two evaluations in the compiled program, where evaluating only ``g`` at the halved
+    trials needed a third to finish (docs/notebook.md, "one copy of each solve").
+    ``full``: ``()`` bool, take the first trial as it is (a stationary-point step)."""
     integ, h = sv.integ, sv.p.h
     dx = dx * sv.free
     if not integ.line_search:
@@ -60,19 +60,16 @@ def line_search(sv: NewtonSetup, w, gw, gvec, dx, full=False) -> Trial:
     dx = jnp.where(descent, dx, -gvec * h**2 / sv.m)
     slope = jnp.where(descent, slope, jnp.sum(gvec * dx))
     slack = 8 * sv.eps * jnp.abs(gw)  # g changes by less than its last bits at convergence
-    a0 = first_step(sv, w, dx)
 
-    def cond(s):
-        a, k, gnew = s
-        armijo = gnew <= gw + GAMMA * a * slope + slack
-        return (k < integ.max_backtracks) & ~(armijo & jnp.isfinite(gnew)) & ~full
+    def accepted(a, k, at):
+        armijo = at.g <= gw + GAMMA * a * slope + slack
+        return (armijo & jnp.isfinite(at.g)) | full | (k >= integ.max_backtracks)
 
     def body(s):
         a, k, _ = s
-        a = BETA * a
-        return a, k + 1, sv.objective(w + a * dx)
+        a, k = BETA * a, k + 1
+        return a, k, sv.evaluate(w + a * dx)
 
-    at0 = sv.evaluate(w + a0 * dx)
-    a, k, gnew = lax.while_loop(cond, body, (a0, jnp.int32(0), at0.g))
-    at = lax.cond(k == 0, lambda: at0, lambda: sv.evaluate(w + a * dx))
-    return Trial(dx, a, k, dataclasses.replace(at, g=gnew))  # g as the search computed it
+    a0 = first_step(sv, w, dx)
+    a, k, at = lax.while_loop(lambda s: ~accepted(*s), body, (a0, jnp.int32(0), sv.evaluate(w + a0 * dx)))
+    return Trial(dx, a, k, at)

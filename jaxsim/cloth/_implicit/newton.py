@@ -77,10 +77,12 @@ def search_direction(sv: NewtonSetup, s: NewtonState, tol):
     parts = dr.hessian_parts(sv, cur.w, cur.terms)
     if sv.integ.project_psd != "auto":
         return dr.minimising(sv, cur.w, -cur.grad, parts, s.guess, tol), jnp.array(False)
-    # (one conditional.  Falling back to the minimising direction in a nested conditional
-    # deadlocked XLA:CPU under vmap.)
     tried = (s.phase > 0) | (s.indefinite & (cur.rel < s.stationary_below))
-    d = lax.cond(tried, lambda: dr.stationary(sv, -cur.grad, parts, s.guess, tol),
+    if not sv.dense:  # one PCG solve serves the stationary point and the first minimising try
+        return dr.auto_cg(sv, -cur.grad, parts, s.guess, tol, stationary=tried), tried
+    # (dense: one conditional.  Falling back to the minimising direction in a nested
+    # conditional deadlocked XLA:CPU under vmap.)
+    d = lax.cond(tried, lambda: dr.stationary(sv, -cur.grad, parts),
                  lambda: dr.minimising(sv, cur.w, -cur.grad, parts, s.guess, tol))
     return d, tried
 
