@@ -33,22 +33,3 @@ def materialized(x):
         return x
     first = x.reshape(-1)[0]
     return lax.cond(jnp.isnan(first), lambda: jnp.full_like(x, jnp.nan), lambda: x)
-
-
-def materialized_rows(vectors):
-    """A list of component tuples (vectors or quaternions over one batch shape, or none),
-    written to memory once: one :func:`materialized` array per batch shape.
-
-    Where a chain of tuples feeds many consumers (the FK chain of a skeleton's start
-    pose, read by every branch test and broadcast of ``ik._kernel.bent_start``), XLA fuses
-    the whole chain into each of them: the humanoid's ``bent_start`` compiled in 10.7 s
-    (78,624 lines of optimised HLO), 6.0 s (23,858 lines) with its FK written once;
-    this helper gives 23,165 lines and 318 fusions (docs/notebook.md).
-    """
-    out, shapes = list(vectors), [jnp.broadcast_shapes(*map(jnp.shape, v)) for v in vectors]
-    for shape in dict.fromkeys(shapes):  # e.g. the root's position: no batch axis
-        ids = [i for i, s in enumerate(shapes) if s == shape]
-        A = materialized(jnp.stack([jnp.stack(jnp.broadcast_arrays(*vectors[i])) for i in ids]))
-        for row, i in enumerate(ids):
-            out[i] = tuple(A[row, k] for k in range(A.shape[1]))
-    return out

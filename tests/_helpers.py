@@ -32,6 +32,28 @@ def as_users_compile(fn, *args):
     return jax.jit(fn).lower(*args).compile(compiler_options=USERS_COMPILER_OPTIONS)(*args)
 
 
+def quat_matrix(q):
+    """The 3x3 rotation matrix of the quaternion ``q (4,)`` (normalised first), NumPy."""
+    w, x, y, z = np.asarray(q, float) / np.linalg.norm(q)
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+
+
+def fk_reference(parents, offsets, rot, frames=False):
+    """Plain NumPy FK by the lab's recursion (rotation matrices): positions ``(J, 3)``, and
+    with ``frames`` the global rotation matrices ``(J, 3, 3)`` too."""
+    G, P = [], []
+    for i, p in enumerate(parents):
+        if p < 0:
+            G.append(quat_matrix(rot[i]))
+            P.append(np.asarray(offsets[0], float))
+        else:
+            P.append(P[p] + G[p] @ np.asarray(offsets[i], float))
+            G.append(G[p] @ quat_matrix(rot[i]))
+    return (np.array(P), np.array(G)) if frames else np.array(P)
+
+
 def all_eqns(jaxpr):
     """Every equation of ``jaxpr``, those of its sub-jaxprs (scan, cond, while) included."""
     for eqn in jaxpr.eqns:

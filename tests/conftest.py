@@ -27,10 +27,10 @@ else:
 #: (``_compile_flags``): the program's math is the one users get, only its machine code is
 #: slower, and the suite's small programs are compile-bound (a cloth step compiles 2x, the
 #: humanoid's tree kernel 1.5x faster).  The flags are read once, at the first compile;
-#: the environment is restored after it.  Subprocess tests choose theirs: the CLI report,
-#: the notebooks and the sharding check take the same flags (``with_fast_compile``);
-#: ``demo --fast`` runs with the defaults, so one end-to-end run of every subsystem
-#: compiles exactly as users' do.
+#: the environment is restored after it.  The subprocess tests (the CLI demo and report,
+#: the notebooks, the sharding check) take the same flags (``with_fast_compile``); a test
+#: that compares two programs bit for bit compiles them with XLA's defaults
+#: (``_helpers.as_users_compile``).
 from _compile_flags import FAST_COMPILE_FLAGS  # noqa: E402
 
 _XLA_FLAGS = os.environ.get("XLA_FLAGS")
@@ -52,8 +52,9 @@ jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
 #: Each live compiled XLA:CPU program holds about six memory mappings, and Linux caps a
 #: process at ``vm.max_map_count`` (65530 by default): a test worker that keeps every
 #: program of half the suite alive crashes inside XLA (segfault or abort) when it hits
-#: the cap.  Compiled programs are dropped after every test module, and mid-module when a
-#: process nears the cap.
+#: the cap.  Compiled programs are dropped when a process nears the cap (and kept
+#: otherwise: a later module that compiles the same program, or the same small eager
+#: operation, finds it in memory).
 MAP_GUARD = 40000
 
 
@@ -70,12 +71,6 @@ def _drop_compiled_programs():
 
     jax.clear_caches()
     gc.collect()
-
-
-@pytest.fixture(autouse=True, scope="module")
-def _fresh_compilation_caches_per_module():
-    yield
-    _drop_compiled_programs()
 
 
 @pytest.fixture(autouse=True)

@@ -4,12 +4,14 @@ import sys
 
 import pytest
 
+from _compile_flags import with_fast_compile
+
 
 @pytest.mark.slow
 def test_demo_fast_writes_summary(tmp_path):
     out = tmp_path / "demo"
     r = subprocess.run([sys.executable, "-m", "jaxsim", "demo", "--fast", "--out", str(out)],
-                       capture_output=True, text=True, timeout=600)
+                       capture_output=True, text=True, timeout=600, env=with_fast_compile(os.environ))
     assert r.returncode == 0, r.stderr
     text = (out / "summary.md").read_text()
     assert "| circle | fabrik | 150 |" in text and "Cloth" in text

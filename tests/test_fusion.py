@@ -64,22 +64,3 @@ def test_the_compiled_step_keeps_the_buffers():
         assert conditionals() == 0
     finally:
         _fusion.ENABLED = True
-
-
-def test_materialized_rows_keeps_values_shapes_and_gradients():
-    """Tuples of mixed batch shapes (a root without a batch axis) come back equal, grouped
-    one buffer per shape; gradients pass through."""
-    rng = np.random.default_rng(0)
-    vecs = [(jnp.asarray(1.0), jnp.asarray(2.0), jnp.asarray(3.0))] + [tuple(jnp.asarray(rng.normal(size=5)) for _ in range(3))
-                                                                    for _ in range(3)]
-    out = jax.jit(_fusion.materialized_rows)(vecs)
-    for v, o in zip(vecs, out):
-        assert len(o) == 3
-        for a, b in zip(v, o):
-            assert jnp.shape(a) == jnp.shape(b)
-            np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
-    x = jnp.asarray(rng.normal(size=(2, 3, 4)))
-    check_grads(lambda x: sum(jnp.sum(jnp.sin(c)) for v in _fusion.materialized_rows([tuple(x[0]), tuple(x[1, :, 0])])
-                              for c in v), (x,), order=1, modes=("fwd", "rev"))
-    txt = jax.jit(_fusion.materialized_rows).lower(vecs).compile().as_text()
-    assert txt.count(" conditional(") == 2  # one buffer for the unbatched tuple, one for the (5,) ones

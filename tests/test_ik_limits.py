@@ -16,7 +16,7 @@ from jax.test_util import check_grads
 
 from jaxsim import ik
 
-from _helpers import random_rotations, tree
+from _helpers import fk_reference, quat_matrix, random_rotations, tree
 
 SOLVERS = ("fabrik", "ccd", "lm")
 
@@ -307,12 +307,11 @@ def test_geometric_jacobian_equals_jacfwd(limits, orient):
 
 def test_stacked_pose_equals_the_per_joint_forms():
     """``_stacked``'s level-by-level FK, vectorised limit projection and effector errors
-    against ``fk_tree``, ``project_all`` and ``effector_sq_errors``, float64, batched."""
+    against a NumPy FK, the per-joint ``project`` and ``effector_sq_errors``, float64, batched."""
     from jaxsim._geometry import quat as Q
     from jaxsim.ik import _stacked
-    from jaxsim.ik._fk import fk_tree
     from jaxsim.ik._limits import limit_table
-    from jaxsim.ik._projection import project_all
+    from jaxsim.ik._projection import project
     from jaxsim.ik._pose import OrientTargets, effector_sq_errors
     from jaxsim.ik._skeleton import topology
 
@@ -323,13 +322,14 @@ def test_stacked_pose_equals_the_per_joint_forms():
     table = limit_table(H)
     assert set(table.kinds) == {"free", "hinge", "swing", "fixed"}  # every kind is projected
     per_joint = [Q.unstack(L[..., i, :], axis=-1) for i in range(J)]
-    want = jnp.stack([Q.stack(q, axis=-1) for q in project_all(table, per_joint)], axis=-2)
+    want = jnp.stack([Q.stack(q if k == "free" else project(q, table.joint(i)), axis=-1)
+                      for i, (q, k) in enumerate(zip(per_joint, table.kinds))], axis=-2)
     np.testing.assert_allclose(_stacked.project_stacked(table, L), want, atol=1e-14, rtol=0)
     P, G = _stacked.fk_stacked(H.parents, H.offsets, L)
-    P0, G0 = fk_tree(H.parents, H.offsets, per_joint)
-    np.testing.assert_allclose(P, jnp.stack([jnp.broadcast_to(Q.stack(p, axis=-1), (2, 3)) for p in P0], axis=-2),
-                               atol=1e-14, rtol=0)
-    np.testing.assert_allclose(G, jnp.stack([Q.stack(g, axis=-1) for g in G0], axis=-2), atol=1e-14, rtol=0)
+    for b in range(2):
+        P0, G0 = fk_reference(H.parents, np.asarray(H.offsets), np.asarray(L[b]), frames=True)
+        np.testing.assert_allclose(P[b], P0, atol=1e-13, rtol=0)
+        np.testing.assert_allclose(np.stack([quat_matrix(g) for g in np.asarray(G[b])]), G0, atol=1e-13, rtol=0)
     tgt, ori = jnp.asarray(rng.normal(size=(2, len(eff), 3))), jnp.asarray(random_rotations(rng, (2, len(eff)), 1.0))
     ow = jnp.asarray([0.3, 0.5, 0.7, 1.1])
     topo = topology(H.parents, eff)

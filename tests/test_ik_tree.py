@@ -18,7 +18,7 @@ from jaxsim._geometry import horn as _horn, quat as _quat
 from jaxsim.ik import _inputs, _solve
 from jaxsim.ik._skeleton import topology
 
-from _helpers import random_rotations
+from _helpers import fk_reference, random_rotations
 
 SOLVERS = ("fabrik", "ccd")
 
@@ -27,24 +27,6 @@ def small_tree():
     """Root, a sub-base with a one-bone and a straight two-bone branch: 5 joints, 2 leaf effectors."""
     offsets = np.array([[0, 0, 0], [0, 1.0, 0], [0.6, 0.3, 0.1], [-0.5, 0.3, 0.0], [-0.25, 0.15, 0.0]])
     return ik.Skeleton(parents=(-1, 0, 1, 1, 3), offsets=offsets)
-
-
-def fk_reference(parents, offsets, rot):
-    """Plain numpy FK by the lab's recursion (rotation matrices)."""
-    def mat(q):
-        w, x, y, z = q / np.linalg.norm(q)
-        return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                         [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                         [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
-    G, P = [], []
-    for i, p in enumerate(parents):
-        if p < 0:
-            G.append(mat(rot[i]))
-            P.append(np.asarray(offsets[0], float))
-        else:
-            P.append(P[p] + G[p] @ offsets[i])
-            G.append(G[p] @ mat(rot[i]))
-    return np.array(P)
 
 
 # ---- the Skeleton type ----

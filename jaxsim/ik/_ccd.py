@@ -18,6 +18,7 @@ from __future__ import annotations
 import functools
 
 import jax.numpy as jnp
+import numpy as np
 
 from .._geometry import quat as _quat
 from . import _joints
@@ -26,6 +27,7 @@ from .._geometry.horn import best_rotation
 from ._projection import about, best_angle, clamp_range, hinge_angle
 from ._loop import SweepPlan
 from ._pose import batched, effector_sq_errors, limited, local_of, moving_joints
+from ._stacked import apply_bounds, batch_leading, bounds
 
 
 def chain_plan(s) -> SweepPlan:
@@ -63,7 +65,7 @@ def tree_plan(s) -> SweepPlan:
         return G, functools.reduce(jnp.maximum, err)
 
     def rotations(G):
-        return ccd_tree_rotations(topo, s.local, G, s.table, s.orient is not None)
+        return ccd_tree_rotations(topo, s.local, G, B, s.table, s.orient is not None)
 
     return SweepPlan(state0=[batched(s.frames[i], B) if i in act else None for i in range(J)], sweep=sweep,
                      rotations=rotations, err0=s.err, iters0=jnp.zeros(B, jnp.int32), done0=s.done,
@@ -209,10 +211,16 @@ def ccd_tree_sweep(topo, offsets, G, targets, w, root, table=None, orient=None):
     return new, effector_sq_errors(topo, Ef, None if F is None else dict(zip(topo.effectors, F)), targets, orient)
 
 
-def ccd_tree_rotations(topo, local0, G, table=None, orient=False):
-    """Local rotations of the frames ``G``: ``L_i = G_p^{-1} G_i`` where joint ``i`` may have
-    moved (projected onto its limits, which removes rounding drift), ``local0`` exactly elsewhere."""
-    L = list(local0)
-    for i in moving_joints(topo, orient):
-        L[i] = limited(table, i, local_of(None if i == 0 else G[topo.parents[i]], G[i]))
-    return L
+def ccd_tree_rotations(topo, local0, G, B, table=None, orient=False):
+    """Local rotations ``(*B, J, 4)`` of the frames ``G``: ``L_i = G_p^{-1} G_i`` where joint
+    ``i`` may have moved (projected onto its limits, which removes rounding drift),
+    ``local0`` exactly elsewhere; all joints at once (``_stacked``)."""
+    L = batch_leading(local0, B)
+    mv = moving_joints(topo, orient)
+    if not mv:
+        return L
+    ident = _quat.identity((), L.dtype)
+    g = _quat.unstack(batch_leading([G[i] for i in mv], B), axis=-1)
+    gp = _quat.unstack(batch_leading([G[topo.parents[i]] if i > 0 else ident for i in mv], B), axis=-1)
+    L = L.at[..., np.asarray(mv), :].set(_quat.stack(_quat.renormalize(_quat.mul(_quat.conj(gp), g)), axis=-1))
+    return apply_bounds(bounds(table, mv), L)

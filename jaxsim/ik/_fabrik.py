@@ -19,6 +19,7 @@ from __future__ import annotations
 import functools
 
 import jax.numpy as jnp
+import numpy as np
 from jax import lax
 
 from .._dataclass import pytree_dataclass
@@ -29,6 +30,7 @@ from .._geometry.horn import best_rotation
 from ._projection import about, best_angle
 from ._loop import SweepPlan
 from ._pose import batched, effector_sq_errors, limited, local_of
+from ._stacked import batch_leading, take, tree_levels
 
 
 def chain_plan(s) -> SweepPlan:
@@ -111,8 +113,8 @@ def tree_plan(s) -> SweepPlan:
 
     def rotations(st: TreeState):
         if framed:
-            return [st.rotations[i] if i in act else s.local[i] for i in range(J)]
-        return fabrik_tree_rotations(topo, s.offsets, s.local, st.positions, st.rotations)
+            return batch_leading([st.rotations[i] if i in act else s.local[i] for i in range(J)], B)
+        return fabrik_tree_rotations(topo, s.offsets, s.local, st.positions, st.rotations, B)
 
     return SweepPlan(state0=state0, sweep=sweep, rotations=rotations, err0=s.err, iters0=jnp.zeros(B, jnp.int32),
                      done0=s.done, keep_best=framed)
@@ -349,29 +351,40 @@ def _aim_hinge(gi, offsets, base, c, goal, table):
     return _quat.renormalize(_quat.mul(about(best_angle(b, [a_perp], [d], [1.0]), b), gi))
 
 
-def fabrik_tree_rotations(topo, offsets, local0, P, Gb):
-    """Local rotations whose FK reproduces the FABRIK positions ``P``, changed least from ``local0``.
+def fabrik_tree_rotations(topo, offsets, local0, P, Gb, B):
+    """Local rotations ``(*B, J, 4)`` whose FK reproduces the FABRIK positions ``P``, changed
+    least from ``local0``.
 
     Root to leaves: a joint with one active child turns its candidate frame (its
     parent's new frame times its old local rotation) by the shortest arc onto its child
     bone, as for chains; a sub-base takes its frame ``Gb``; every other joint keeps its
-    local rotation exactly.
+    local rotation exactly.  One tree level at a time, its joints at once (``_stacked``).
     """
-    parents, J = topo.parents, len(topo.parents)
-    g, L = [None] * J, list(local0)
-    for i in range(J):
-        gp = g[parents[i]] if i > 0 else None
-        cand = local0[i] if gp is None else _quat.mul(gp, local0[i])
-        kids = topo.active_children[i]
-        if len(kids) == 1:
-            c = kids[0]
-            bone_now = _quat.rotate(cand, _quat.unstack(offsets[c]))
-            gi = _quat.renormalize(_quat.mul(_quat.from_two_vectors(bone_now, _quat.sub(P[c], P[i])), cand))
-        elif len(kids) > 1:
-            gi = Gb[i]
-        else:
-            g[i] = cand
-            continue
-        g[i] = gi
-        L[i] = _quat.renormalize(gi if gp is None else _quat.mul(_quat.conj(gp), gi))
+    parents, ac = topo.parents, topo.active_children
+    levels, _ = tree_levels(tuple(parents))
+    L = batch_leading(local0, B)
+    g_prev, rows = None, [((0,), None)] + list(levels)
+    for joints, prow in rows:
+        cand = take(L, joints)
+        gp = None if prow is None else take(g_prev, prow)
+        if gp is not None:
+            cand = _quat.stack(_quat.mul(_quat.unstack(gp, axis=-1), _quat.unstack(cand, axis=-1)), axis=-1)
+        g = cand
+        one = [r for r, i in enumerate(joints) if len(ac[i]) == 1]
+        if one:
+            i1, c1 = [joints[r] for r in one], [ac[joints[r]][0] for r in one]
+            c = _quat.unstack(take(cand, one), axis=-1)
+            bone = _quat.rotate(c, _quat.unstack(take(offsets, c1, axis=0), axis=-1))
+            want = _quat.unstack(batch_leading([P[k] for k in c1], B) - batch_leading([P[k] for k in i1], B), axis=-1)
+            g = g.at[..., np.asarray(one), :].set(
+                _quat.stack(_quat.renormalize(_quat.mul(_quat.from_two_vectors(bone, want), c)), axis=-1))
+        sub = [r for r, i in enumerate(joints) if len(ac[i]) > 1]
+        if sub:
+            g = g.at[..., np.asarray(sub), :].set(batch_leading([Gb[joints[r]] for r in sub], B))
+        moved = [r for r, i in enumerate(joints) if ac[i]]
+        if moved:
+            gm = _quat.unstack(take(g, moved), axis=-1)
+            loc = gm if gp is None else _quat.mul(_quat.conj(_quat.unstack(take(gp, moved), axis=-1)), gm)
+            L = L.at[..., np.asarray([joints[r] for r in moved]), :].set(_quat.stack(_quat.renormalize(loc), axis=-1))
+        g_prev = g
     return L

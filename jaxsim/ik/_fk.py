@@ -4,9 +4,9 @@
 
 (``GlobalRotation(child) = GlobalRotation(parent) * LocalRotation(child)``,
 ``GlobalPosition(child) = GlobalPosition(parent) + GlobalRotation(parent) * LocalOffset(child)``.)
-A tree is unrolled over its static joints (:func:`fk_tree`); a chain may also run the
-recursion as a ``fori_loop`` over stacked arrays (:func:`fk_joints`, see ``_joints``),
-whose compile time does not grow with ``J``.
+A tree goes one tree level at a time, all of a level's joints at once
+(``_stacked.fk_stacked``); a chain may also run the recursion as a ``fori_loop`` over
+stacked arrays (:func:`fk_joints`, see ``_joints``), whose compile time does not grow with ``J``.
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ from .._dataclass import pytree_dataclass
 from .._geometry import quat as _quat
 from . import _joints
 from ._skeleton import chain_parents
+from ._stacked import fk_stacked
 
 
 @pytree_dataclass
@@ -32,32 +33,6 @@ class Pose:
 
     positions: jax.Array
     rotations: jax.Array
-
-
-def fk_tree(parents, offsets, local, joints=None):
-    """FK on lists of component tuples.
-
-    Args:
-      parents: static parent tuple.
-      offsets: ``(J, 3)``.
-      local: list of ``J`` local quaternion tuples (any common batch shape).
-      joints: the joints to compute (an ancestor-closed increasing tuple); default all.
-        Other entries of the outputs are ``None``.
-
-    Returns:
-      ``(positions, frames)``: lists of ``J`` vector and quaternion tuples.
-    """
-    J = len(parents)
-    joints = range(J) if joints is None else joints
-    P, G = [None] * J, [None] * J
-    for i in joints:
-        if i == 0:
-            P[0], G[0] = _quat.unstack(offsets[0]), local[0]
-            continue
-        p = parents[i]
-        P[i] = _quat.add(P[p], _quat.rotate(G[p], _quat.unstack(offsets[i])))
-        G[i] = _quat.mul(G[p], local[i])
-    return P, G
 
 
 def fk_joints(offsets, local, batch_shape, *, unroll: bool):
@@ -93,13 +68,12 @@ def joint_positions(parents, offsets, local):
     """``(J, 3)`` joint positions of stacked local rotations ``local (J, 4)`` (one pose).
 
     A chain goes through the rolled recursion (its derivatives compile several times
-    faster than the unrolled tree's), any other tree through :func:`fk_tree`.
+    faster), any other tree level by level (``_stacked.fk_stacked``).
     """
     J = len(parents)
     if parents == chain_parents(J):
         return fk_joints(offsets, local, (), unroll=False)[0]
-    P, _ = fk_tree(parents, offsets, [_quat.unstack(local[i]) for i in range(J)])
-    return _quat.stack([_quat.stack(p) for p in P])
+    return fk_stacked(parents, offsets, local)[0]
 
 
 def fk(skeleton, rotations: jax.Array | None = None, *, unroll: bool | None = None) -> Pose:
@@ -112,7 +86,8 @@ def fk(skeleton, rotations: jax.Array | None = None, *, unroll: bool | None = No
         (``q / |q|``, and a zero quaternion is the identity), so bone lengths are kept
         whatever the scale of ``q``.
       unroll: chains only: unroll the joint loop (default: ``J <= 16`` and a batch of
-        >= 256); otherwise a ``fori_loop`` over joints.  Other trees are unrolled.
+        >= 256): one tree level (joint) at a time; otherwise a ``fori_loop`` over
+        joints.  Other trees go one tree level at a time.
 
     Returns:
       ``Pose`` with global ``positions (..., J, 3)`` and ``rotations (..., J, 4)``.
@@ -128,8 +103,5 @@ def fk(skeleton, rotations: jax.Array | None = None, *, unroll: bool | None = No
     if skeleton.is_chain and not _joints.unrolled(J, unroll, int(np.prod(batch))):
         P, G = fk_joints(skeleton.offsets, jnp.moveaxis(rotations, (-2, -1), (0, 1)), batch, unroll=False)
         return Pose(positions=jnp.moveaxis(P, (0, 1), (-2, -1)), rotations=jnp.moveaxis(G, (0, 1), (-2, -1)))
-    local = [_quat.unstack(rotations[..., i, :], axis=-1) for i in range(J)]
-    P, G = fk_tree(skeleton.parents, skeleton.offsets, local)
-    P = [tuple(jnp.broadcast_to(c, batch) for c in p) for p in P]
-    return Pose(positions=jnp.stack([_quat.stack(p, axis=-1) for p in P], axis=-2),
-                rotations=jnp.stack([_quat.stack(g, axis=-1) for g in G], axis=-2))
+    P, G = fk_stacked(skeleton.parents, skeleton.offsets, rotations)
+    return Pose(positions=P, rotations=G)

@@ -18,12 +18,11 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from .._fusion import materialized_rows
 from .._geometry import quat as _quat
 from . import _ccd, _fabrik, _joints
-from ._fk import fk_joints, fk_tree
+from ._fk import fk_joints
+from ._stacked import _s, fk_stacked, joint_rows, project_stacked
 from ._limits import LimitTable
-from ._projection import project_all
 from ._loop import run_plan
 from ._pose import OrientTargets, batched, bone_lengths, effector_sq_errors, finish, reachable_flags
 from ._result import IKResult
@@ -136,11 +135,11 @@ def bent_start(offsets, targets, local0, tol, *, topo):
     """``(J, 4, *B)`` start rotations with straight branches on their targets' lines bent
     (``_symmetry.break_symmetry_tree``).  Compiled apart from the sweeps: inside the same
     program it doubles their compile time."""
-    J, B = len(topo.parents), targets.shape[2:]
-    L0 = [_quat.renormalize(_quat.unstack(local0[i])) for i in range(J)]
-    P0, G0 = (materialized_rows(x) for x in fk_tree(topo.parents, offsets, L0))
-    L0 = break_symmetry_tree(topo, offsets, L0, P0, G0, [_quat.unstack(targets[k]) for k in range(targets.shape[0])],
-                             tol)
+    B = targets.shape[2:]
+    L0 = _s(_quat.renormalize(_quat.unstack(jnp.moveaxis(local0, (0, 1), (-2, -1)), axis=-1)))
+    P0, G0 = (joint_rows(x) for x in fk_stacked(topo.parents, offsets, L0))
+    tgt = [_quat.unstack(targets[k]) for k in range(targets.shape[0])]
+    L0 = break_symmetry_tree(topo, offsets, joint_rows(L0), P0, G0, tgt, tol)
     return _quat.stack([_quat.stack(batched(q, B)) for q in L0])
 
 
@@ -173,11 +172,14 @@ def run_tree(offsets, targets, local0, weights, tol, table=None, orients=None, o
       iterations and converged, ``trace (max_iters, *B)`` (the worst effector) or
       ``None``, ``angle_error (E, *B)`` or ``None``.
     """
-    J, E, B = len(topo.parents), len(topo.effectors), targets.shape[2:]
+    E, B = len(topo.effectors), targets.shape[2:]
     tgt = [_quat.unstack(targets[k]) for k in range(E)]
     orient = orient_targets(orients, orient_weights)
-    L0 = project_all(table, [_quat.renormalize(_quat.unstack(local0[i])) for i in range(J)])
-    P0, G0 = fk_tree(topo.parents, offsets, L0)
+    # the start on stacked joints (``_stacked``: FK by tree level, the projection over all
+    # joints at once): a fraction of the per-joint code to compile
+    L0 = project_stacked(table, _s(_quat.renormalize(_quat.unstack(jnp.moveaxis(local0, (0, 1), (-2, -1)), axis=-1))))
+    P0, G0 = (joint_rows(x) for x in fk_stacked(topo.parents, offsets, L0))
+    L0 = joint_rows(L0)
     worst0 = functools.reduce(jnp.maximum, effector_sq_errors(topo, P0, G0, tgt, orient))
     start = TreeStart(topo=topo, offsets=offsets, lengths=bone_lengths(offsets), targets=tgt,
                       weights=[weights[k] for k in range(E)], orient=orient, table=table, local=L0, positions=P0,
@@ -185,5 +187,4 @@ def run_tree(offsets, targets, local0, weights, tol, table=None, orients=None, o
                       done=jnp.broadcast_to(worst0 <= tol * tol, B), batch=B)
     local, iters, errs = run_plan(PLANS[alg].tree_plan(start), tol, max_iters=max_iters, trace=trace,
                                   early_exit=early_exit)
-    return finish(topo, offsets, [batched(q, B) for q in local], tgt, orient, tol, iters,
-                  reachable_flags(topo, offsets, tgt, B), errs)
+    return finish(topo, offsets, local, tgt, orient, tol, iters, reachable_flags(topo, offsets, tgt, B), errs)

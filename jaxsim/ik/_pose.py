@@ -8,7 +8,7 @@ import dataclasses
 import jax.numpy as jnp
 
 from .._geometry import quat as _quat
-from ._fk import fk_tree
+from ._stacked import angle_errors, fk_stacked, take
 from ._projection import project
 from ._result import IKResult
 
@@ -69,17 +69,21 @@ def effector_sq_errors(topo, P, G, targets, orient: OrientTargets | None):
             for k, (e, e2) in enumerate(zip(topo.effectors, err))]
 
 
-def finish(topo, offsets, local, tgt, orient: OrientTargets | None, tol, iters, reachable, errs):
-    """The component-first ``IKResult`` of the local rotations ``local`` (lists of tuples)."""
-    P, G = fk_tree(topo.parents, offsets, local)
-    err = jnp.stack([_quat.safe_norm(_quat.sub(P[e], t)) for e, t in zip(topo.effectors, tgt)])
-    ok = jnp.all(err <= tol, axis=0)
+def finish(topo, offsets, L, tgt, orient: OrientTargets | None, tol, iters, reachable, errs):
+    """The component-first ``IKResult`` of the local rotations ``L (*B, J, 4)``; FK and the
+    errors on stacked joints (``_stacked``)."""
+    B = jnp.shape(iters)
+    P, G = fk_stacked(topo.parents, offsets, L)
+    eff = topo.effectors
+    t = jnp.stack([_quat.stack(batched(x, B), axis=-1) for x in tgt], axis=-2)  # (*B, E, 3)
+    err = _quat.safe_norm(_quat.unstack(take(P, eff) - t, axis=-1))
+    ok = jnp.all(err <= tol, axis=-1)
     ang = None
     if orient is not None:
-        ang = jnp.stack([_quat.angle(_quat.mul(_quat.conj(orient.rotations[k]), G[e]))
-                         for k, e in enumerate(topo.effectors)])
-        ok = ok & jnp.all(jnp.stack(orient.weights)[(...,) + (None,) * (ang.ndim - 1)] * ang <= tol, axis=0)
-    B = jnp.shape(iters)
-    return IKResult(rotations=_quat.stack([_quat.stack(q) for q in local]),
-                    positions=_quat.stack([_quat.stack(batched(p, B)) for p in P]),
-                    error=err, iterations=iters, converged=ok, reachable=reachable, trace=errs, angle_error=ang)
+        Tq = jnp.stack([_quat.stack(batched(q, B), axis=-1) for q in orient.rotations], axis=-2)
+        ang = angle_errors(G, eff, Tq)
+        ok = ok & jnp.all(jnp.stack(orient.weights) * ang <= tol, axis=-1)
+
+    return IKResult(rotations=jnp.moveaxis(L, (-2, -1), (0, 1)), positions=jnp.moveaxis(P, (-2, -1), (0, 1)),
+                    error=jnp.moveaxis(err, -1, 0), iterations=iters, converged=ok, reachable=reachable, trace=errs,
+                    angle_error=None if ang is None else jnp.moveaxis(ang, -1, 0))

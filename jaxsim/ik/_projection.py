@@ -3,7 +3,8 @@
 :func:`clamp` moves a rotation into its limit set, twist and swing clamped separately:
 the result is always in the set (the nearest point for a hinge, or where only one part
 is violated).  Every solver uses it: per joint (:func:`project`) in the sweeps, over
-stacked joints (``_stacked.apply_bounds``) in LM.
+stacked joints (``_stacked.apply_bounds``) at a solve's start and end, in LM, and in
+:func:`project_limits`.
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ import jax
 import jax.numpy as jnp
 
 from .._geometry import quat as _quat
-from ._limits import JointLimit, LimitTable, limit_table
+from ._limits import JointLimit, limit_table
 
 
 def _canonical(q):
@@ -146,18 +147,6 @@ def violation(q, lim: JointLimit):
     return tw + (off if kind == "hinge" else jnp.maximum(off - swing, 0.0))
 
 
-def project_all(table: LimitTable | None, L, joints=None):
-    """Project each joint's rotation in the list ``L`` (``None`` entries skipped)."""
-    if table is None:
-        return list(L)
-    joints = range(len(L)) if joints is None else joints
-    out = list(L)
-    for i in joints:
-        if out[i] is not None and table.kinds[i] != "free":
-            out[i] = project(out[i], table.joint(i))
-    return out
-
-
 def _joint_rotations(skeleton, rotations):
     """``rotations (..., J, 4)`` checked and normalised: ``(bad (..., J), list of J tuples)``,
     ``bad`` marking rotations with a NaN or inf entry."""
@@ -191,6 +180,8 @@ def project_limits(skeleton, rotations) -> jax.Array:
     A rotation already within its limit is returned unchanged (up to rounding); one with
     a NaN or inf entry comes back as NaN (it has no nearest rotation in the limit).
     """
+    from ._stacked import project_stacked  # (``_stacked`` builds on this module)
+
     bad, L = _joint_rotations(skeleton, rotations)
-    L = project_all(limit_table(skeleton), L)
-    return jnp.where(bad[..., None], jnp.nan, jnp.stack([_quat.stack(q, axis=-1) for q in L], axis=-2))
+    L = project_stacked(limit_table(skeleton), jnp.stack([_quat.stack(q, axis=-1) for q in L], axis=-2))
+    return jnp.where(bad[..., None], jnp.nan, L)

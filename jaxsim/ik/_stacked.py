@@ -131,6 +131,18 @@ def project_stacked(table, L):
     return apply_bounds(bounds(table), L)
 
 
+def batch_leading(rows, B):
+    """``(*B, J, C)`` from per-joint component tuples ``rows`` (a list of ``J``, each
+    component broadcasting to ``B``): the sweep kernels' layout to this module's."""
+    return jnp.stack([_s(tuple(jnp.broadcast_to(c, B) for c in r)) for r in rows], axis=-2)
+
+
+def joint_rows(a):
+    """Per-joint component tuples (a list of ``J``) of ``a (*B, J, C)``: the inverse of
+    :func:`batch_leading`."""
+    return [_q(a[..., i, :]) for i in range(a.shape[-2])]
+
+
 def frame_axes(G):
     """``(..., 3, 3)``: the frame ``G (..., 4)``'s world axes ``R(G) u``, one row per unit axis ``u``."""
     g = tuple(c[..., None] for c in _q(G))

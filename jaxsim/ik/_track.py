@@ -17,7 +17,7 @@ from ._fk import joint_positions
 from ._inputs import check_flags, check_inputs, check_model
 from ._kernel import bent_start, run_chain, run_tree
 from ._limits import limit_table
-from ._projection import project_all
+from ._stacked import project_stacked
 from ._lm import lm_one
 from ._result import IKResult
 from ._settings import LevenbergMarquardt, resolve_settings
@@ -57,8 +57,8 @@ def jitter(rotations, start=None):
 
 
 def _project_rows(table, local):
-    """``(J, 4)`` rotations projected onto the limits."""
-    return _quat.stack([_quat.stack(q) for q in project_all(table, [_quat.unstack(local[i]) for i in range(len(local))])])
+    """``(J, 4)`` rotations projected onto the limits (all joints at once, ``_stacked``)."""
+    return project_stacked(table, local)
 
 
 def _frame(res, prev, target, tol, max_step, *, clamp, pose, errors, limit=None):
