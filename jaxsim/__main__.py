@@ -37,14 +37,24 @@ def main(argv=None) -> int:
         from ._cli.cache import enable_compilation_cache
 
         before = _out.prepare(args.out, args.command, args.force)  # before any work
-        checkpoint = lambda: _out.record(args.out, args.command, before)  # noqa: E731
         interrupted = []
+
+        def checkpoint():
+            written = _out.record(args.out, args.command, before)
+            if interrupted:  # the interrupt was raised where Python swallows exceptions (a gc callback)
+                raise KeyboardInterrupt
+            return written
 
         def on_sigint(signum, frame):
             interrupted.append(signum)
             raise KeyboardInterrupt
 
-        signal.signal(signal.SIGINT, on_sigint)
+        def quiet_unraisable(unraisable):  # the checkpoint raises it again where it can propagate
+            if not (interrupted and isinstance(unraisable.exc_value, KeyboardInterrupt)):
+                default_unraisable(unraisable)
+
+        default_unraisable, sys.unraisablehook = sys.unraisablehook, quiet_unraisable
+        default_sigint = signal.signal(signal.SIGINT, on_sigint)
         try:
             enable_compilation_cache()
             from . import retain_host_memory
@@ -58,15 +68,19 @@ def main(argv=None) -> int:
                 from ._cli.report import run
 
                 rc = run(out=args.out, quick=args.quick)
+            if interrupted:
+                raise KeyboardInterrupt
         except BaseException:
             if not interrupted:  # a real error; an interrupt can surface as another error from a cleanup
                 raise
-            checkpoint()
+            _out.record(args.out, args.command, before)
             print(f"python -m jaxsim {args.command}: interrupted; the files written so far are listed as its own in "
                   f"{args.out}, so running it again there overwrites them", file=sys.stderr)
             return 130
         finally:
-            overwritten = checkpoint()
+            signal.signal(signal.SIGINT, default_sigint)
+            sys.unraisablehook = default_unraisable
+            overwritten = _out.record(args.out, args.command, before)
             if overwritten:
                 print(f"python -m jaxsim {args.command}: --force: overwrote {len(overwritten)} files it had not "
                       f"written: {', '.join(overwritten)}", file=sys.stderr)
