@@ -5,19 +5,9 @@ from __future__ import annotations
 import os
 import time
 
+from ._timing import timed
 from .demo_anim import anim_section
 from .demo_contact import contact_section
-
-
-def _timed(fn):
-    """Run ``fn`` twice (compile, then measured); return ``(result, compile_s, run_s)``."""
-    import jax
-
-    t0 = time.perf_counter()
-    jax.block_until_ready(fn())
-    t1 = time.perf_counter()
-    out = jax.block_until_ready(fn())
-    return out, t1 - t0, time.perf_counter() - t1
 
 
 def _ik_section(out: str, fast: bool, lines: list[str]) -> None:
@@ -33,7 +23,7 @@ def _ik_section(out: str, fast: bool, lines: list[str]) -> None:
     for k, (name, solver) in enumerate(jobs, 1):
         targets = curves.CURVES[name]()
         print(f"[demo] IK {k}/{len(jobs)}: {name} ({len(targets)} points) with {solver} ...", flush=True)
-        res, _, run_s = _timed(lambda: ik.track(chain, targets[:, None], solver=solver))
+        res, _, run_s = timed(lambda: ik.track(chain, targets[:, None], solver=solver))
         stem = f"ik_{name}" + ("" if solver == "fabrik" else f"_{solver}")
         title = f"{name}, {solver}"
         viz.save(viz.plot_tracking(res, targets, title=title), os.path.join(out, stem + ".png"))
@@ -76,7 +66,7 @@ def _humanoid_section(out: str, fast: bool, lines: list[str]) -> None:
     eff = tuple(H.index(n) for n in ik.HUMANOID_EFFECTORS)
     targets = humanoid_targets(H)
     print(f"[demo] humanoid: hands trace circle and heart, feet planted ({len(targets)} frames) ...", flush=True)
-    res, _, run_s = _timed(lambda: ik.track(H, targets, solver=ik.FABRIK(tol=1e-4), effectors=eff))
+    res, _, run_s = timed(lambda: ik.track(H, targets, solver=ik.FABRIK(tol=1e-4), effectors=eff))
     viz.animate_skeleton(H, res.positions, os.path.join(out, "humanoid.gif"), effectors=eff, targets=targets,
                          stride=10 if fast else 2, title="humanoid, FABRIK")
     it = np.asarray(res.iterations)
@@ -87,7 +77,9 @@ def _humanoid_section(out: str, fast: bool, lines: list[str]) -> None:
 
 
 def _limits_section(out: str, fast: bool, lines: list[str]) -> None:
-    """``humanoid_limits.gif``: the same hand trajectories, limits off (left) and on (right)."""
+    """``humanoid_limits.gif``: the same hand trajectories, limits off (left, FABRIK) and on
+    (right, Levenberg-Marquardt: the solver for limited rigs; FABRIK's projections stall
+    against the limits)."""
     import numpy as np
 
     from .. import ik, viz
@@ -96,8 +88,9 @@ def _limits_section(out: str, fast: bool, lines: list[str]) -> None:
     eff = tuple(H.index(n) for n in ik.HUMANOID_EFFECTORS)
     targets = humanoid_targets(H)
     print(f"[demo] humanoid with joint limits, off and on ({len(targets)} frames) ...", flush=True)
-    results = [ik.track(sk, targets, solver=ik.FABRIK(tol=1e-4), effectors=eff)
-               for sk in (ik.humanoid(limits=False), H)]
+    runs = (("off", "FABRIK", ik.humanoid(limits=False), ik.FABRIK(tol=1e-4)),
+            ("on", "LM", H, ik.LevenbergMarquardt(tol=1e-4)))
+    results = [ik.track(sk, targets, solver=solver, effectors=eff) for _, _, sk, solver in runs]
     shift = np.array([1.1, 0.0, 0.7])  # apart in both views: x (front) and z (side)
     P = np.concatenate([np.asarray(results[0].positions) - shift, np.asarray(results[1].positions) + shift], axis=1)
     T = np.concatenate([targets - shift, targets + shift], axis=1)
@@ -105,15 +98,15 @@ def _limits_section(out: str, fast: bool, lines: list[str]) -> None:
     parents = H.parents + tuple(J if p < 0 else p + J for p in H.parents)  # two figures, one drawing
     viz.animate_skeleton(parents, P, os.path.join(out, "humanoid_limits.gif"), effectors=eff + tuple(e + J for e in eff),
                          targets=T, views=("front", "side"), stride=10 if fast else 2,
-                         title="FABRIK: limits off (left) and on (right); the side view shows the elbows")
-    lines += ["## IK: the humanoid with joint limits off and on (FABRIK on the tree)", "",
-              "| limits | mean sweeps | max error (m) | frames converged | max limit violation (rad) | "
-              "elbow angle range (°) | file |", "|---|---|---|---|---|---|---|"]
-    for name, res in zip(("off", "on"), results):
+                         title="limits off (left, FABRIK) and on (right, LM); the side view shows the elbows")
+    lines += ["## IK: the humanoid with joint limits off (FABRIK) and on (Levenberg-Marquardt)", "",
+              "| limits | solver | mean iterations | max error (m) | frames converged | max limit violation (rad) | "
+              "elbow angle range (°) | file |", "|---|---|---|---|---|---|---|---|"]
+    for (name, solver, _, _), res in zip(runs, results):
         viol = float(np.max(np.asarray(ik.limit_violation(H, res.rotations))))
         q = np.asarray(res.rotations)[:, H.index("l_elbow")]
         ang = np.degrees(2 * np.arctan2(-q[:, 2] * np.sign(q[:, 0] + 1e-30), np.abs(q[:, 0])))  # about -y
-        lines.append(f"| {name} | {np.asarray(res.iterations).mean():.2f} | {float(np.max(res.error)):.2e} | "
+        lines.append(f"| {name} | {solver} | {np.asarray(res.iterations).mean():.2f} | {float(np.max(res.error)):.2e} | "
                      f"{100 * float(np.mean(res.converged)):.0f}% | {viol:.1e} | {ang.min():.0f} to {ang.max():.0f} | "
                      "humanoid_limits.gif |")
     lines.append("")
@@ -131,7 +124,7 @@ def _cloth_section(out: str, fast: bool, lines: list[str]) -> None:
     solver = "dense" if isinstance(integ.linear(c.num_particles), cloth.Cholesky) else "cg"
     print(f"[demo] cloth: lab cloth, {seconds:g} s at 60 steps/s, implicit Euler ({solver}) ...", flush=True)
     s0 = cloth.State.at_rest(c)
-    (states, infos), compile_s, run_s = _timed(lambda: cloth.rollout(c, s0, 1 / 60, steps, integ))
+    (states, infos), compile_s, run_s = timed(lambda: cloth.rollout(c, s0, 1 / 60, steps, integ), again=False)
     rep = cloth.energy_report(c, s0, states, infos)
     print("[demo] cloth: drawing cloth.gif ...", flush=True)
     xs = np.concatenate([np.asarray(s0.x)[None], np.asarray(states.x)])
