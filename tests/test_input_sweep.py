@@ -8,8 +8,6 @@ batch, finite differences for LM's gradient, the start pose's error for FABRIK.
 import math
 import os
 import signal
-import subprocess
-import sys
 import time
 from decimal import Decimal
 from fractions import Fraction
