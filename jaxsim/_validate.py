@@ -4,7 +4,14 @@ from __future__ import annotations
 
 from typing import Any
 
+import jax
 import numpy as np
+
+
+def array_like(x: Any):
+    """``x`` as an array a jitted entry point takes: arrays (and tracers) as they are, lists
+    and scalars through NumPy (a list would be a pytree of scalars)."""
+    return x if isinstance(x, (jax.Array, np.ndarray)) else np.asarray(x)
 
 
 def check_shape(name: str, x: Any, shape: tuple) -> np.ndarray:

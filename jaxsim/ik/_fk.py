@@ -11,11 +11,14 @@ stacked arrays (:func:`fk_joints`, see ``_joints``), whose compile time does not
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from .._dataclass import pytree_dataclass
+from .._validate import array_like
 from .._geometry import quat as _quat
 from . import _joints
 from ._skeleton import chain_parents
@@ -94,6 +97,13 @@ def fk(skeleton, rotations: jax.Array | None = None, *, unroll: bool | None = No
     """
     if rotations is None:
         rotations = skeleton.rest_rotations()
+    return _fk(skeleton, array_like(rotations), unroll=unroll)
+
+
+@functools.partial(jax.jit, static_argnames="unroll")
+def _fk(skeleton, rotations, *, unroll):
+    """:func:`fk` as one compiled program per skeleton shape (eagerly, a tree's FK would be
+    hundreds of small dispatches, each compiled on its first shape)."""
     rotations = jnp.asarray(rotations, skeleton.offsets.dtype)
     J = skeleton.num_joints
     if rotations.shape[-2:] != (J, 4):

@@ -13,6 +13,7 @@ import jax
 import jax.numpy as jnp
 
 from .._geometry import quat as _quat
+from .._validate import array_like
 from ._limits import JointLimit, limit_table
 
 
@@ -158,13 +159,8 @@ def _joint_rotations(skeleton, rotations):
     return ~jnp.all(jnp.isfinite(raw), axis=-1), [_quat.unstack(q[..., i, :], axis=-1) for i in range(J)]
 
 
-def limit_violation(skeleton, rotations) -> jax.Array:
-    """Per joint, the angle (rad) by which ``rotations (..., J, 4)`` break the skeleton's limits.
-
-    Returns:
-      ``(..., J)``: 0 for a joint within its limit (and for a free joint); ``inf`` for a
-      rotation with a NaN or inf entry, which is within no limit.
-    """
+@jax.jit
+def _limit_violation(skeleton, rotations):
     bad, L = _joint_rotations(skeleton, rotations)
     table = limit_table(skeleton)
     if table is None:
@@ -174,14 +170,29 @@ def limit_violation(skeleton, rotations) -> jax.Array:
     return jnp.where(bad, jnp.inf, v)
 
 
+@jax.jit
+def _project_limits(skeleton, rotations):
+    from ._stacked import project_stacked  # (``_stacked`` builds on this module)
+
+    bad, L = _joint_rotations(skeleton, rotations)
+    L = project_stacked(limit_table(skeleton), jnp.stack([_quat.stack(q, axis=-1) for q in L], axis=-2))
+    return jnp.where(bad[..., None], jnp.nan, L)
+
+
+def limit_violation(skeleton, rotations) -> jax.Array:
+    """Per joint, the angle (rad) by which ``rotations (..., J, 4)`` break the skeleton's limits.
+
+    Returns:
+      ``(..., J)``: 0 for a joint within its limit (and for a free joint); ``inf`` for a
+      rotation with a NaN or inf entry, which is within no limit.
+    """
+    return _limit_violation(skeleton, array_like(rotations))
+
+
 def project_limits(skeleton, rotations) -> jax.Array:
     """``rotations (..., J, 4)`` moved into the skeleton's limits, joint by joint (normalised first).
 
     A rotation already within its limit is returned unchanged (up to rounding); one with
     a NaN or inf entry comes back as NaN (it has no nearest rotation in the limit).
     """
-    from ._stacked import project_stacked  # (``_stacked`` builds on this module)
-
-    bad, L = _joint_rotations(skeleton, rotations)
-    L = project_stacked(limit_table(skeleton), jnp.stack([_quat.stack(q, axis=-1) for q in L], axis=-2))
-    return jnp.where(bad[..., None], jnp.nan, L)
+    return _project_limits(skeleton, array_like(rotations))
