@@ -14,12 +14,12 @@ def main(argv=None) -> int:
     sub = parser.add_subparsers(dest="command", required=True)
     p = sub.add_parser("demo", help="run the lab's scenes and write animations and a summary")
     p.add_argument("--out", default="jaxsim-demo", help="output folder (default: ./jaxsim-demo)")
-    p.add_argument("--fast", action="store_true", help="shorter runs of the same scenes (about 2 minutes on 2 cores "
+    p.add_argument("--fast", action="store_true", help="shorter runs of the same scenes (about 1.5 minutes on 2 cores "
                    "with an empty compilation cache)")
     p.add_argument("--force", action="store_true", help="write into --out even if it holds files demo did not write")
     p = sub.add_parser("report", help="write the error-vs-time and stability report")
     p.add_argument("--out", default="jaxsim-report", help="output folder (default: ./jaxsim-report)")
-    p.add_argument("--quick", action="store_true", help="small sizes, sections in two processes (about 4 "
+    p.add_argument("--quick", action="store_true", help="small sizes, sections in two processes (about 3 "
                    "minutes on 2 cores with an empty compilation cache)")
     p.add_argument("--force", action="store_true", help="write into --out even if it holds files report did not write")
     p = sub.add_parser("bench", help="run the package's benchmark scripts (source checkout)")
