@@ -40,6 +40,7 @@ from jax.scipy.linalg import cho_factor, cho_solve
 
 from .._dataclass import pytree_dataclass
 from .._geometry import quat as _quat
+from .._geometry.horn import best_rotation
 from ._projection import hinge_angle
 from ._loop import masked_sweeps
 from ._pose import moving_joints, reachable_flags
@@ -146,6 +147,27 @@ def _perturb(L, d, dofs: Dofs, table):
     ids = np.asarray(dofs.joints)
     new = _quat.stack(_quat.mul(_quat.unstack(L[ids], axis=-1), _quat.unstack(dq, axis=-1)), axis=-1)
     return L.at[ids].set(new)
+
+
+def _aligned_root(topo, offsets, L, r, e2, prob: LMProblem, moved):
+    """The start with its root turned by Horn's (1987) rotation that best aligns the
+    effectors (seen from the root) with their targets, projected onto the root's limit,
+    where that lowers the cost: ``(L (J, 4), r, e2)``.  A whole-body turn is the motion LM
+    finds worst from a far start (the limited humanoid's unconverged sets were off at
+    every effector).  Not for one effector: Horn's rotation is then the shortest arc, which
+    would turn a straight chain back onto its target's line, where ``J^T r = 0``."""
+    P, _ = fk_stacked(topo.parents, offsets, L)
+    root = P[0]
+    a = _quat.unstack(take(P, topo.effectors, axis=0) - root, axis=-1)
+    b = _quat.unstack(prob.targets - root, axis=-1)
+    R = best_rotation([tuple(c[k] for c in a) for k in range(len(topo.effectors))],
+                      [tuple(c[k] for c in b) for k in range(len(topo.effectors))],
+                      [prob.weights[k] for k in range(len(topo.effectors))])
+    turned = L.at[0].set(_quat.stack(_quat.mul(R, _quat.unstack(L[0], axis=-1)), axis=-1))
+    turned = apply_bounds(moved, turned)
+    rt, et = _residual(topo, offsets, turned, prob)
+    ok = jnp.sum(rt * rt) < jnp.sum(r * r)
+    return jnp.where(ok, turned, L), jnp.where(ok, rt, r), jnp.where(ok, et, e2)
 
 
 def _orient_scale(prob: LMProblem):
@@ -260,6 +282,8 @@ def lm_one(offsets, targets, local0, weights, tol, table, orients, orient_weight
     L0 = project_stacked(table, local0)
     moved = bounds(table, dofs.joints)  # only these change in the loop (fixed joints are not among them)
     r0, e0 = _residual(topo, offsets, L0, prob)
+    if len(topo.effectors) > 1 and dofs.joints and dofs.joints[0] == 0 and not dofs.hinge[0]:
+        L0, r0, e0 = _aligned_root(topo, offsets, L0, r0, e0, prob, moved)
 
     def solve(Jac, r, damping):
         # (J^T J + mu I)^-1 J^T = J^T (J J^T + mu I)^-1: the smaller of the two systems
