@@ -41,8 +41,8 @@ def limits_section(doc: Doc) -> None:
            "sweeps or LM iterations.  CCD turns each hinge by its best angle about the axis and projects other "
            "joints' rotations onto their limits; FABRIK projects each joint's rotation in its forward pass and turns "
            "a hinge's parent so the hinge plane holds the bend; LM (damped least squares with the geometric "
-           "Jacobian from one FK pass) projects each trial pose, holding a hinge on a bound whose step points out of "
-           "range.")
+           "Jacobian from one FK pass) projects each trial pose, holding a hinge on a bound that steepest descent "
+           "would push out of range.")
     doc.figure(fig, "ik_limits.png", "Humanoid with joint limits: worst effector error against iterations and time")
     doc.table("ik_limits", rows, {"solver": "solver", "conv": f"converged in {M} %", "iters": "mean iterations "
                                   "(converged)", "median": "median worst error (m)", "us": "µs per iteration per set",

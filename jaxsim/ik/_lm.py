@@ -256,7 +256,9 @@ def spd_solve(A, b):
 
 
 def _held_hinges(L, d, dofs: Dofs, table, dtype):
-    """``(n,)`` bool: a hinge on a bound whose step ``d`` points out of its range."""
+    """``(n,)`` bool: a hinge on a bound whose direction ``d`` (the steepest descent
+    ``-J^T r``) points out of its range: the active set of a projected Newton method
+    (Bertsekas 1982, §2), so one solve, without those columns, gives the step."""
     held = jnp.zeros((dofs.n,), bool)
     hc = dofs.hinge_cols
     if not hc:
@@ -298,10 +300,9 @@ def lm_one(offsets, targets, local0, weights, tol, table, orients, orient_weight
 
     def sweep(s: LMState):
         Jac, r = geometric_jacobian(topo, offsets, s.rotations, prob, dofs, table)
+        if dofs.hinge_cols:  # a hinge on a bound that descent would push out of range is held
+            Jac = jnp.where(_held_hinges(s.rotations, -(Jac.T @ r), dofs, table, dtype), 0.0, Jac)
         d = solve(Jac, r, s.damping)
-        if dofs.hinge_cols:  # a hinge on a bound whose step points out of range is held (one active-set pass)
-            held = _held_hinges(s.rotations, d, dofs, table, dtype)
-            d = jnp.where(jnp.any(held), solve(jnp.where(held, 0.0, Jac), r, s.damping), d)
         d = jnp.where(jnp.all(jnp.isfinite(d)), d, 0.0)
         trial = apply_bounds(moved, _perturb(s.rotations, d, dofs, table))
         rt, et = _residual(topo, offsets, trial, prob)
