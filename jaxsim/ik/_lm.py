@@ -61,12 +61,15 @@ class LMState:
       damping: ``()`` relative damping ``lambda``.
       cost: ``()`` squared residual norm of the current pose.
       sq_error: ``()`` squared worst effector error of the current pose.
+      positions, frames: ``(J, 3)`` and ``(J, 4)``, the current pose's FK.
     """
 
     rotations: jax.Array
     damping: jax.Array
     cost: jax.Array
     sq_error: jax.Array
+    positions: jax.Array
+    frames: jax.Array
 
 
 @pytree_dataclass
@@ -204,9 +207,14 @@ def geometric_jacobian(topo, offsets, L, prob: LMProblem, dofs: Dofs, table):
     one axis, its own.  All columns at once: ``(E, 3, n)`` and ``(E, 3, 3, n)`` blocks masked by
     the static ancestor table.  Equal to ``jax.jacfwd`` of the residual at ``d = 0`` (tested).
     """
-    P, G = fk_stacked(topo.parents, offsets, L)
+    return jacobian_at(topo, *fk_stacked(topo.parents, offsets, L), prob, dofs, table)
+
+
+def jacobian_at(topo, P, G, prob: LMProblem, dofs: Dofs, table):
+    """:func:`geometric_jacobian` at FK's ``P (J, 3)``, ``G (J, 4)`` (LM carries the FK of its
+    accepted pose, so an iteration takes one FK pass: its trial's)."""
     r, _ = _residual_at(topo, P, G, prob)
-    cj, dtype = dofs.col_joint, offsets.dtype
+    cj, dtype = dofs.col_joint, P.dtype
     local = jnp.asarray(np.eye(3)[np.asarray(dofs.col_axis)], dtype)
     if any(dofs.hinge):
         local = jnp.where(np.asarray(dofs.col_hinge)[:, None], take(table.axis, cj, axis=0), local)
@@ -299,21 +307,25 @@ def lm_one(offsets, targets, local0, weights, tol, table, orients, orient_weight
         return spd_solve(A, -(Jac.T @ r))
 
     def sweep(s: LMState):
-        Jac, r = geometric_jacobian(topo, offsets, s.rotations, prob, dofs, table)
+        Jac, r = jacobian_at(topo, s.positions, s.frames, prob, dofs, table)
         if dofs.hinge_cols:  # a hinge on a bound that descent would push out of range is held
             Jac = jnp.where(_held_hinges(s.rotations, -(Jac.T @ r), dofs, table, dtype), 0.0, Jac)
         d = solve(Jac, r, s.damping)
         d = jnp.where(jnp.all(jnp.isfinite(d)), d, 0.0)
         trial = apply_bounds(moved, _perturb(s.rotations, d, dofs, table))
-        rt, et = _residual(topo, offsets, trial, prob)
+        Pt, Gt = fk_stacked(topo.parents, offsets, trial)
+        rt, et = _residual_at(topo, Pt, Gt, prob)
         ct = jnp.sum(rt * rt)
         ok = ct < s.cost
         new = LMState(rotations=jnp.where(ok, trial, s.rotations),
                       damping=jnp.clip(jnp.where(ok, s.damping / 3, s.damping * 4), lam_min, LAMBDA_MAX),
-                      cost=jnp.where(ok, ct, s.cost), sq_error=jnp.where(ok, et, s.sq_error))
+                      cost=jnp.where(ok, ct, s.cost), sq_error=jnp.where(ok, et, s.sq_error),
+                      positions=jnp.where(ok, Pt, s.positions), frames=jnp.where(ok, Gt, s.frames))
         return new, new.sq_error
 
-    s0 = LMState(rotations=L0, damping=jnp.asarray(damping, dtype), cost=jnp.sum(r0 * r0), sq_error=e0)
+    P0, G0 = fk_stacked(topo.parents, offsets, L0)
+    s0 = LMState(rotations=L0, damping=jnp.asarray(damping, dtype), cost=jnp.sum(r0 * r0), sq_error=e0,
+                 positions=P0, frames=G0)
     if n == 0:
         state, iters, errs = s0, jnp.zeros((), jnp.int32), (jnp.broadcast_to(jnp.sqrt(e0), (max_iters,))
                                                             if trace else None)
