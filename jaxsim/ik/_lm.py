@@ -152,25 +152,23 @@ def _perturb(L, d, dofs: Dofs, table):
     return L.at[ids].set(new)
 
 
-def _aligned_root(topo, offsets, L, r, e2, prob: LMProblem, moved):
-    """The start with its root turned by Horn's (1987) rotation that best aligns the
-    effectors (seen from the root) with their targets, projected onto the root's limit,
-    where that lowers the cost: ``(L (J, 4), r, e2)``.  A whole-body turn is the motion LM
-    finds worst from a far start (the limited humanoid's unconverged sets were off at
-    every effector).  Not for one effector: Horn's rotation is then the shortest arc, which
-    would turn a straight chain back onto its target's line, where ``J^T r = 0``."""
-    P, _ = fk_stacked(topo.parents, offsets, L)
-    root = P[0]
-    a = _quat.unstack(take(P, topo.effectors, axis=0) - root, axis=-1)
-    b = _quat.unstack(prob.targets - root, axis=-1)
-    R = best_rotation([tuple(c[k] for c in a) for k in range(len(topo.effectors))],
-                      [tuple(c[k] for c in b) for k in range(len(topo.effectors))],
-                      [prob.weights[k] for k in range(len(topo.effectors))])
-    turned = L.at[0].set(_quat.stack(_quat.mul(R, _quat.unstack(L[0], axis=-1)), axis=-1))
-    turned = apply_bounds(moved, turned)
-    rt, et = _residual(topo, offsets, turned, prob)
-    ok = jnp.sum(rt * rt) < jnp.sum(r * r)
-    return jnp.where(ok, turned, L), jnp.where(ok, rt, r), jnp.where(ok, et, e2)
+def _aligned_root(topo, offsets, L, P, G, prob: LMProblem, moved):
+    """The start ``L (J, 4)`` (with its FK ``P (J, 3)``, ``G (J, 4)``) with its root turned by
+    Horn's (1987) rotation that best aligns the effectors (seen from the root) with their
+    targets, projected onto the root's limit, where that lowers the cost: ``(L, P, G)``.
+    A whole-body turn is the motion LM finds worst from a far start (the limited humanoid's
+    unconverged sets were off at every effector).  Not for one effector: Horn's rotation is
+    then the shortest arc, which would turn a straight chain back onto its target's line,
+    where ``J^T r = 0``."""
+    E = len(topo.effectors)
+    a = _quat.unstack(take(P, topo.effectors, axis=0) - P[0], axis=-1)
+    b = _quat.unstack(prob.targets - P[0], axis=-1)
+    R = best_rotation([tuple(c[k] for c in a) for k in range(E)], [tuple(c[k] for c in b) for k in range(E)],
+                      [prob.weights[k] for k in range(E)])
+    turned = apply_bounds(moved, L.at[0].set(_quat.stack(_quat.mul(R, _quat.unstack(L[0], axis=-1)), axis=-1)))
+    Pt, Gt = fk_stacked(topo.parents, offsets, turned)
+    ok = jnp.sum(_residual_at(topo, Pt, Gt, prob)[0] ** 2) < jnp.sum(_residual_at(topo, P, G, prob)[0] ** 2)
+    return jnp.where(ok, turned, L), jnp.where(ok, Pt, P), jnp.where(ok, Gt, G)
 
 
 def _orient_scale(prob: LMProblem):
@@ -291,9 +289,10 @@ def lm_one(offsets, targets, local0, weights, tol, table, orients, orient_weight
     lam_min = LAMBDA_MIN_EPS * jnp.finfo(dtype).eps
     L0 = project_stacked(table, local0)
     moved = bounds(table, dofs.joints)  # only these change in the loop (fixed joints are not among them)
-    r0, e0 = _residual(topo, offsets, L0, prob)
+    P0, G0 = fk_stacked(topo.parents, offsets, L0)
     if len(topo.effectors) > 1 and dofs.joints and dofs.joints[0] == 0 and not dofs.hinge[0]:
-        L0, r0, e0 = _aligned_root(topo, offsets, L0, r0, e0, prob, moved)
+        L0, P0, G0 = _aligned_root(topo, offsets, L0, P0, G0, prob, moved)
+    r0, e0 = _residual_at(topo, P0, G0, prob)
 
     def solve(Jac, r, damping):
         # (J^T J + mu I)^-1 J^T = J^T (J J^T + mu I)^-1: the smaller of the two systems
@@ -323,7 +322,6 @@ def lm_one(offsets, targets, local0, weights, tol, table, orients, orient_weight
                       positions=jnp.where(ok, Pt, s.positions), frames=jnp.where(ok, Gt, s.frames))
         return new, new.sq_error
 
-    P0, G0 = fk_stacked(topo.parents, offsets, L0)
     s0 = LMState(rotations=L0, damping=jnp.asarray(damping, dtype), cost=jnp.sum(r0 * r0), sq_error=e0,
                  positions=P0, frames=G0)
     if n == 0:
