@@ -26,14 +26,15 @@ KS = (1e2, 1e4, 1e6, 1e7)
 DTS = (1 / 600, 1 / 60, 1 / 30, 1 / 10)
 
 
-def sweep(scene, steps, integrator, ks=KS, dts=DTS, progress=None):
+def sweep(scene, steps, integrator, ks=KS, dts=DTS, progress=None, rollout=C.rollout):
+    """One rollout per ``(k, dt)`` cell; ``rollout`` is ``C.rollout`` or a callable like it."""
     rows = []
     s0 = C.State.at_rest(scene)
     for k in ks:
         c = C.replace(scene, stiffness=jnp.full_like(scene.stiffness, k))
         for dt in dts:
             t0 = time.perf_counter()
-            states, infos = C.rollout(c, s0, dt, steps, integrator)
+            states, infos = rollout(c, s0, dt, steps, integrator)
             rep = C.energy_report(c, s0, states, infos)
             jax.block_until_ready(rep)
             rows.append({

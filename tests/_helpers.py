@@ -32,6 +32,23 @@ def as_users_compile(fn, *args):
     return jax.jit(fn).lower(*args).compile(compiler_options=USERS_COMPILER_OPTIONS)(*args)
 
 
+def users_jit(fn):
+    """``fn`` jitted with XLA:CPU's default options, compiled once per input shape: for the
+    tests that are run-time bound (the suite's faster compile options make slower code)."""
+    from _compile_flags import USERS_COMPILER_OPTIONS
+
+    compiled = {}
+
+    def call(*args):
+        leaves, tree = jax.tree_util.tree_flatten(args)
+        key = (tree, tuple((np.shape(a), getattr(a, "dtype", None) or np.result_type(a)) for a in leaves))
+        if key not in compiled:
+            compiled[key] = jax.jit(fn).lower(*args).compile(compiler_options=USERS_COMPILER_OPTIONS)
+        return compiled[key](*args)
+
+    return call
+
+
 def quat_matrix(q):
     """The 3x3 rotation matrix of the quaternion ``q (4,)`` (normalised first), NumPy."""
     w, x, y, z = np.asarray(q, float) / np.linalg.norm(q)

@@ -80,9 +80,16 @@ def _guard_memory_mappings():
         _drop_compiled_programs()
 
 
-#: Tests that take the longest, started first so the workers finish together.
-SLOW_FIRST = ("test_report.py", "test_notebooks.py", "test_sharding.py", "test_cli.py", "test_cloth_contact.py",
-              "test_cloth_stability.py")
+#: The test files that take the longest (worker-seconds, 2 workers, 2026-12-05: notebooks 116,
+#: limits 104, trust 98, tree 95, report 95, BDF2 92, IK solvers 91, ...), longest first: with
+#: ``--no-loadscope-reorder`` (pyproject) xdist hands out files in this order, so the
+#: single-test subprocess files (the report, the sharding check) do not start last while
+#: the other worker idles (xdist's default order is by test count, which put them at the end).
+SLOW_FIRST = ("test_notebooks.py", "test_report.py", "test_ik_limits.py", "test_cloth_trust.py", "test_ik_tree.py",
+              "test_cloth_bdf2.py", "test_ik_solvers.py", "test_differentiable.py", "test_cloth_contact.py",
+              "test_cloth_stability.py", "test_cloth_start.py", "test_cli.py", "test_sharding.py",
+              "test_cloth_stencil.py", "test_cloth_coarse.py", "test_input_sweep.py", "test_cloth_substeps.py",
+              "test_cloth_core.py")
 
 
 def pytest_collection_modifyitems(items):

@@ -298,7 +298,7 @@ def test_lm_default_start_and_seeds():
 def test_geometric_jacobian_equals_jacfwd(limits, orient):
     """LM's Jacobian from one FK pass (hinges one column, fixed joints none) against
     ``jax.jacfwd`` of its residual, at a random pose, float64."""
-    from jaxsim.ik import _lm
+    from jaxsim.ik import _residual
     from jaxsim.ik._limits import limit_table
     from jaxsim.ik._skeleton import topology
 
@@ -307,18 +307,18 @@ def test_geometric_jacobian_equals_jacfwd(limits, orient):
     eff = tuple(H.index(n) for n in ik.HUMANOID_EFFECTORS)
     table, topo = limit_table(H), topology(H.parents, eff)
     L = jnp.asarray(random_rotations(rng, (H.num_joints,), np.pi))
-    prob = _lm.LMProblem(jnp.asarray(rng.normal(size=(len(eff), 3))), 1.0 + jnp.arange(len(eff), dtype=jnp.float64))
+    prob = _residual.LMProblem(jnp.asarray(rng.normal(size=(len(eff), 3))), 1.0 + jnp.arange(len(eff), dtype=jnp.float64))
     if orient:
-        prob = _lm.LMProblem(prob.targets, prob.weights, jnp.asarray(random_rotations(rng, (len(eff),), np.pi)),
+        prob = _residual.LMProblem(prob.targets, prob.weights, jnp.asarray(random_rotations(rng, (len(eff),), np.pi)),
                              jnp.full((len(eff),), 0.7))
-    dofs = _lm._dofs(topo, table, orient)
+    dofs = _residual._dofs(topo, table, orient)
     assert any(dofs.hinge) == limits  # a hinge takes one column
 
     def residual(d):
-        return _lm._residual(topo, H.offsets, _lm._perturb(L, d, dofs, table), prob)[0]
+        return _residual._residual(topo, H.offsets, _residual._perturb(L, d, dofs, table), prob)[0]
 
     expected = jax.jacfwd(residual)(jnp.zeros(dofs.n))
-    got, r = _lm.geometric_jacobian(topo, H.offsets, L, prob, dofs, table)
+    got, r = _residual.geometric_jacobian(topo, H.offsets, L, prob, dofs, table)
     assert got.shape == expected.shape == (len(eff) * (12 if orient else 3), dofs.n)
     np.testing.assert_allclose(got, expected, atol=1e-10, rtol=0)
     np.testing.assert_allclose(r, residual(jnp.zeros(dofs.n)), atol=0, rtol=0)

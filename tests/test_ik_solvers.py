@@ -4,7 +4,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from jax.test_util import check_grads
 
@@ -250,8 +250,12 @@ directions = st.tuples(st.floats(-1, 1), st.floats(-1, 1), st.floats(-1, 1)).fil
 
 @settings(max_examples=30, deadline=None)
 @given(lengths=chains6, direction=directions, frac=st.floats(0.05, 0.95), solver=st.sampled_from(["ccd", "fabrik"]))
+@example(lengths=[0.25, 1.0, 1.0, 1.0, 1.0], direction=(-1.0, 0.0, 0.0), frac=0.9375, solver="ccd")
 @pytest.mark.slow
 def test_property_lengths_root_and_convergence(lengths, direction, frac, solver):
+    """Bone lengths and the root kept, and convergence to 1e-6.  CCD converges linearly, and
+    slowly on a nearly straight chain: the example (found by this test, 94% of the reach)
+    takes 3,275 sweeps, 90% of the reach 1,430, 80% 68; hence CCD's budget of 5,000."""
     lengths = np.asarray(lengths)
     # a chain with a bend so the rest pose is generic
     offs = np.zeros((6, 3))
@@ -266,7 +270,7 @@ def test_property_lengths_root_and_convergence(lengths, direction, frac, solver)
     inner = max(0.0, 2 * lengths.max() - lengths.sum())
     r = inner + frac * (lengths.sum() - inner)
     target = offs[0] + r * d
-    res = SOLVERS[solver](chain, target, max_iters=2000 if solver == "ccd" else 500, tol=1e-6)
+    res = SOLVERS[solver](chain, target, max_iters=5000 if solver == "ccd" else 500, tol=1e-6)
     np.testing.assert_allclose(np.linalg.norm(bone_vectors(res.positions), axis=-1), lengths, rtol=1e-9)
     np.testing.assert_allclose(res.positions[0], offs[0], atol=1e-12)
     assert bool(res.converged), (float(res.error[0]), int(res.iterations))

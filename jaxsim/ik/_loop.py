@@ -163,3 +163,121 @@ def masked_sweeps(sweep, state0, err0, iters0, done0, tol, *, max_iters, trace, 
         rows = jnp.arange(max_iters).reshape((max_iters,) + (1,) * len(B))
         errs = jnp.where(rows < k, buf, carry.err)
     return state, iters, errs
+
+
+@pytree_dataclass
+class _QueueCarry:
+    """What :func:`refill_sweeps` carries: ``W`` lanes working through a queue of ``N`` items.
+
+    Attributes:
+      lane: ``(W,)`` int32, the item each lane works on (``N``: idle).
+      items: the lanes' items (a pytree, leading axis ``W``).
+      iters: ``(W,)`` int32, sweeps of each lane's current start; total: ``(W,)`` int32, of all its starts.
+      seed: ``(W,)`` int32, which start of its item each lane is on.
+      best, best_e2: ``seeds > 1`` only (else ``None``): each lane's best finished start so far
+        and its squared error (``inf`` before the first).
+      head: ``()`` int32, queue entries handed out so far.
+      out: every item's result (leading axis ``N``); out_iters: ``(N,)`` int32.
+    """
+
+    lane: jax.Array
+    items: Any
+    iters: jax.Array
+    total: jax.Array
+    seed: jax.Array
+    best: Any
+    best_e2: jax.Array | None
+    mark: jax.Array
+    head: jax.Array
+    out: Any
+    out_iters: jax.Array
+
+
+def _rows_where(c, a, b):
+    """``jnp.where`` per leading row: ``c (W,)`` against leaves ``(W, ...)``."""
+    return jax.tree_util.tree_map(lambda x, y: jnp.where(c.reshape(c.shape + (1,) * (x.ndim - 1)), x, y), a, b)
+
+
+def refill_sweeps(sweep, items0, e2_0, tol, *, max_iters, lanes, seeds=1, restart=None, stall=None):
+    """:func:`masked_sweeps` with ``early_exit`` on a flat batch, as a work queue: ``lanes``
+    lanes sweep at once, and a lane whose item meets ``tol`` (or reaches ``max_iters``)
+    hands it back and takes the next item not yet started.  The loop's sweeps then number
+    about ``sum(iterations) / lanes``, where a batch that stops only when its slowest item
+    is done sweeps every item ``max(iterations)`` times.  Each item gets the sweeps, state
+    and count that :func:`masked_sweeps` gives it.
+
+    With ``seeds > 1`` an item that ends a start unconverged is started again, in the same
+    lane, from ``restart(items, k)`` for ``k = 1, ..., seeds - 1`` in turn, until a start
+    converges; it keeps the first start that converged, else the one of least error, and
+    its count is the sweeps of every start it ran.  Extra starts cost only where the first fails.
+
+    Args:
+      sweep: ``items (W, ...) -> (items, sq_error (W,))``, lane by lane (vmapped); an item
+        carries its problem data as well as its state.
+      items0: the start items, a pytree with leading axis ``N``; e2_0: ``(N,)`` their squared errors.
+      tol: scalar tolerance; max_iters (per start), lanes (``<= N``), seeds: static.
+      restart: ``(items (W, ...), k (W,)) -> items``, the items started afresh from start ``k``.
+      stall: ``seeds > 1`` only: ``(every, ratio)`` (static) ends a start early whose squared
+        error, checked every ``every`` sweeps, is above ``ratio`` times its last check's; or ``None``.
+
+    Returns:
+      ``(items (N, ...), iterations (N,))``.
+    """
+    N = e2_0.shape[0]
+    tol2 = tol * tol
+    done0 = e2_0 <= tol2
+    queue = jnp.argsort(done0, stable=True).astype(jnp.int32)  # the items to solve first, in order
+    pending = N - jnp.sum(done0, dtype=jnp.int32)
+    first = jnp.arange(lanes, dtype=jnp.int32)
+    lane0 = jnp.where(first < pending, queue[first], N)
+    multi = seeds > 1
+    inf = jnp.full((lanes,), jnp.inf, jnp.result_type(e2_0))
+
+    def take(idx):
+        return jax.tree_util.tree_map(lambda a: a[jnp.minimum(idx, N - 1)], items0)
+
+    def body(c: _QueueCarry) -> _QueueCarry:
+        active = c.lane < N
+        new, e2 = sweep(c.items)
+        iters, total = c.iters + active.astype(jnp.int32), c.total + active.astype(jnp.int32)
+        hit = e2 <= tol2
+        ended = active & (hit | (iters >= max_iters))
+        mark = c.mark
+        if multi and stall is not None:  # a start whose error has not fallen enough in `every` sweeps ends
+            every, ratio = stall
+            check = active & (iters % every == 0)
+            ended = ended | (check & (e2 > ratio * mark))
+            mark = jnp.where(check, e2, mark)
+        result, best, best_e2, again = new, c.best, c.best_e2, jnp.zeros_like(ended)
+        if multi:  # a start that ended unconverged: the next start, or the best of them
+            better = ended & (e2 < best_e2)
+            best, best_e2 = _rows_where(better, new, best), jnp.where(better, e2, best_e2)
+            again = ended & ~hit & (c.seed + 1 < seeds)
+            result = _rows_where(hit, new, best)
+        fin = ended & ~again
+        slot = jnp.where(fin, c.lane, N)  # out of range: dropped
+        out = jax.tree_util.tree_map(lambda o, x: o.at[slot].set(x, mode="drop"), c.out, result)
+        out_iters = c.out_iters.at[slot].set(total, mode="drop")
+        src = c.head + jnp.cumsum(fin, dtype=jnp.int32) - 1
+        refill = fin & (src < pending)
+        nxt = queue[jnp.clip(src, 0, N - 1)]
+        lane = jnp.where(refill, nxt, jnp.where(fin, N, c.lane))
+        items = _rows_where(active, new, c.items)
+        seed = c.seed
+        if multi:
+            seed = jnp.where(again, seed + 1, jnp.where(fin, 0, seed))
+            items = lax.cond(jnp.any(again), lambda: _rows_where(again, restart(items, seed), items), lambda: items)
+            best_e2 = jnp.where(fin, jnp.inf, best_e2)
+            mark = jnp.where(ended, jnp.inf, mark)
+        items = _rows_where(refill, take(nxt), items)
+        return _QueueCarry(lane=lane, items=items, iters=jnp.where(ended, 0, iters), total=jnp.where(fin, 0, total),
+                           seed=seed, best=best, best_e2=best_e2, mark=mark, head=c.head + jnp.sum(fin, dtype=jnp.int32),
+                           out=out, out_iters=out_iters)
+
+    zeros = jnp.zeros((lanes,), jnp.int32)
+    start = take(lane0)
+    c0 = _QueueCarry(lane=lane0, items=start, iters=zeros, total=zeros, seed=zeros, best=start if multi else None,
+                     best_e2=inf if multi else None, mark=inf, head=jnp.asarray(lanes, jnp.int32), out=items0,
+                     out_iters=jnp.zeros((N,), jnp.int32))
+    c = lax.while_loop(lambda c: jnp.any(c.lane < N), body, c0)
+    return c.out, c.out_iters

@@ -56,7 +56,9 @@ class LevenbergMarquardt(_Settings):
       damping: the starting relative damping ``lambda`` (> 0), adapted per iteration.
       seeds: starts per target set (static, >= 1): the given (or default) start and
         ``seeds - 1`` fixed poses inside the limits; the first that converges is kept
-        (else the closest), and ``iterations`` counts them all (``_starts``).
+        (else the closest), and ``iterations`` counts them all (``_starts``).  With
+        ``early_exit`` on 128 or more sets the starts run one after another, each only
+        where the earlier ones failed or stalled (``_lm.run_lm``).
     """
 
     damping: float = 1e-2

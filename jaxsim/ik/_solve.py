@@ -25,7 +25,7 @@ from ._inputs import Inputs, check_flags, check_inputs, check_model
 from ._kernel import bent_start, run_chain, run_tree
 from ._limits import limit_table
 from ._lm import run_lm
-from ._starts import best_of, default_start, extra_starts
+from ._starts import default_start, extra_starts
 from ._result import IKResult
 from ._settings import CCD, FABRIK, LevenbergMarquardt
 from ._skeleton import topology
@@ -110,18 +110,14 @@ def _run(settings, model, inp: Inputs, topo, table, lean, *, trace, unroll, earl
     tgt = jnp.moveaxis(targets, (-2, -1), (0, 1))
     start = bent_start(offsets, tgt, jnp.moveaxis(rotations, (-2, -1), (0, 1)), tol, topo=topo)
     if isinstance(settings, LevenbergMarquardt):  # LM too starts bent: on its target's line J^T r = 0
-        rot = jnp.moveaxis(start, (0, 1), (-2, -1)).reshape((n, 1, J, 4))  # bent_start's is (J, 4, *B)
-        K = settings.seeds
-        if K > 1:  # the extra starts, the same for every set (``_starts``)
-            rot = jnp.concatenate([rot, jnp.broadcast_to(extra_starts(model, K), (n, K - 1, J, 4))], axis=1)
+        rot = jnp.moveaxis(start, (0, 1), (-2, -1)).reshape((n, J, 4))  # bent_start's is (J, 4, *B)
+        extra = extra_starts(model, settings.seeds) if settings.seeds > 1 else None  # the same for every set
 
         def flat(a):
-            return None if a is None else jnp.repeat(a.reshape((n,) + a.shape[-2:]), K, axis=0)
+            return None if a is None else a.reshape((n,) + a.shape[-2:])
 
-        res = run_lm(offsets, flat(targets), rot.reshape((n * K, J, 4)), inp.weights, tol, table, flat(orients),
-                     inp.orientation_weights, jnp.asarray(settings.damping, dtype), topo=topo, **kw)
-        if K > 1:
-            res = best_of(res, n, K)
+        res = run_lm(offsets, flat(targets), rot, inp.weights, tol, table, flat(orients), inp.orientation_weights,
+                     jnp.asarray(settings.damping, dtype), extra, topo=topo, **kw)
         return jax.tree_util.tree_map(lambda x: x.reshape(batch + x.shape[1:]), res)
     res = run_tree(offsets, tgt, start, inp.weights, tol, table,
                    None if orients is None else jnp.moveaxis(orients, (-2, -1), (0, 1)), inp.orientation_weights,
