@@ -272,6 +272,13 @@ def test_lm_default_start_and_seeds():
     K = 3
     starts = np.concatenate([q0[None], np.asarray(extra_starts(sk, K))])
     assert np.all(np.asarray(ik.limit_violation(sk, starts)) <= 1e-12)
+    from jaxsim.ik._starts import HINGE_FRACTIONS
+
+    for k in range(K - 1):  # the extra starts' hinges spread over their ranges
+        for j, (lo, hi) in ((1, (0.0, 2.5)), (2, (-1.0, 1.0))):
+            a = lo + HINGE_FRACTIONS[k] * (hi - lo)
+            axis = np.asarray(sk.limits[j].axis)
+            np.testing.assert_allclose(starts[k + 1, j], [np.cos(a / 2), *(np.sin(a / 2) * axis)], atol=1e-12)
     runs = [ik.solve(sk, t, solver=settings, rotations=starts[k]) for k in range(K)]
     many = ik.solve(sk, t, solver=ik.LevenbergMarquardt(4, 1e-6, seeds=K))
     conv = np.stack([np.asarray(r.converged) for r in runs], axis=1)
