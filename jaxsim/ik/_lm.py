@@ -150,7 +150,7 @@ class LMItem:
 
 
 def _lm_start(offsets, targets, local0, weights, table, orients, orient_weights, damping, *, topo):
-    """``(problem, start state, start squared error)`` of one set (``local0 (J, 4)``)."""
+    """The start of one set (``local0 (J, 4)``): its state and problem."""
     dtype = offsets.dtype
     prob = LMProblem(targets, weights, orients, None if orients is None else orient_weights)
     dofs = _dofs(topo, table, orients is not None)
@@ -159,9 +159,8 @@ def _lm_start(offsets, targets, local0, weights, table, orients, orient_weights,
     if len(topo.effectors) > 1 and dofs.joints and dofs.joints[0] == 0 and not dofs.hinge[0]:
         L0, P0, G0 = _aligned_root(topo, offsets, L0, P0, G0, prob, bounds(table, dofs.joints))
     r0, e0 = _residual_at(topo, P0, G0, prob)
-    s0 = LMState(rotations=L0, damping=jnp.asarray(damping, dtype), cost=jnp.sum(r0 * r0), sq_error=e0,
-                 positions=P0, frames=G0)
-    return prob, s0, e0
+    return LMItem(LMState(rotations=L0, damping=jnp.asarray(damping, dtype), cost=jnp.sum(r0 * r0), sq_error=e0,
+                          positions=P0, frames=G0), prob)
 
 
 def _lm_sweep(s: LMState, prob: LMProblem, offsets, table, *, topo):
@@ -199,7 +198,8 @@ def lm_one(offsets, targets, local0, weights, tol, table, orients, orient_weight
 
     Returns the ``IKResult`` of one target (``rotations (J, 4)``, ``error (E,)``, ...).
     """
-    prob, s0, e0 = _lm_start(offsets, targets, local0, weights, table, orients, orient_weights, damping, topo=topo)
+    start = _lm_start(offsets, targets, local0, weights, table, orients, orient_weights, damping, topo=topo)
+    s0, prob, e0 = start.state, start.prob, start.state.sq_error
     if _dofs(topo, table, orients is not None).n == 0:
         state, iters, errs = s0, jnp.zeros((), jnp.int32), (jnp.broadcast_to(jnp.sqrt(e0), (max_iters,))
                                                             if trace else None)
@@ -273,8 +273,7 @@ def run_lm(offsets, targets, local0, weights, tol, table, orients, orient_weight
         return best_of(res, N, K)
     start = functools.partial(_lm_start, topo=topo)
     axes = (None, 0, 0, None, None, None if orients is None else 0, None, None)
-    prob, s0, e0 = jax.vmap(start, in_axes=axes)(offsets, targets, local0, weights, table, orients, orient_weights,
-                                                 damping)
+    items0 = jax.vmap(start, in_axes=axes)(offsets, targets, local0, weights, table, orients, orient_weights, damping)
 
     def sweep(it: LMItem):
         new, e2 = _lm_sweep(it.state, it.prob, offsets, table, topo=topo)
@@ -282,11 +281,11 @@ def run_lm(offsets, targets, local0, weights, tol, table, orients, orient_weight
 
     def restart(items: LMItem, k):
         def one(p: LMProblem, L0):
-            return LMItem(*_lm_start(offsets, p.targets, L0, p.weights, table, p.orients, p.orient_weights, damping,
-                                     topo=topo)[1::-1])
+            return _lm_start(offsets, p.targets, L0, p.weights, table, p.orients, p.orient_weights, damping,
+                             topo=topo)
 
         return jax.vmap(one)(items.prob, extra[k - 1])
 
-    out, iters = refill_sweeps(jax.vmap(sweep), LMItem(s0, prob), e0, tol, max_iters=max_iters, lanes=queue_lanes(N),
-                               seeds=K, restart=restart, stall=STALL)
+    out, iters = refill_sweeps(jax.vmap(sweep), items0, items0.state.sq_error, tol, max_iters=max_iters,
+                               lanes=queue_lanes(N), seeds=K, restart=restart, stall=STALL)
     return jax.vmap(lambda L, p, k: _result(topo, offsets, L, p, tol, k, None))(out.state.rotations, out.prob, iters)

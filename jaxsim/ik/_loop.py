@@ -176,6 +176,7 @@ class _QueueCarry:
       seed: ``(W,)`` int32, which start of its item each lane is on.
       best, best_e2: ``seeds > 1`` only (else ``None``): each lane's best finished start so far
         and its squared error (``inf`` before the first).
+      mark: with ``stall`` only (else ``None``): each lane's squared error at its last stall check.
       head: ``()`` int32, queue entries handed out so far.
       out: every item's result (leading axis ``N``); out_iters: ``(N,)`` int32.
     """
@@ -187,7 +188,7 @@ class _QueueCarry:
     seed: jax.Array
     best: Any
     best_e2: jax.Array | None
-    mark: jax.Array
+    mark: jax.Array | None
     head: jax.Array
     out: Any
     out_iters: jax.Array
@@ -243,7 +244,7 @@ def refill_sweeps(sweep, items0, e2_0, tol, *, max_iters, lanes, seeds=1, restar
         hit = e2 <= tol2
         ended = active & (hit | (iters >= max_iters))
         mark = c.mark
-        if multi and stall is not None:  # a start whose error has not fallen enough in `every` sweeps ends
+        if mark is not None:  # a start whose error has not fallen enough in `every` sweeps ends
             every, ratio = stall
             check = active & (iters % every == 0)
             ended = ended | (check & (e2 > ratio * mark))
@@ -268,16 +269,19 @@ def refill_sweeps(sweep, items0, e2_0, tol, *, max_iters, lanes, seeds=1, restar
             seed = jnp.where(again, seed + 1, jnp.where(fin, 0, seed))
             items = lax.cond(jnp.any(again), lambda: _rows_where(again, restart(items, seed), items), lambda: items)
             best_e2 = jnp.where(fin, jnp.inf, best_e2)
-            mark = jnp.where(ended, jnp.inf, mark)
+            if mark is not None:
+                mark = jnp.where(ended, jnp.inf, mark)
         items = _rows_where(refill, take(nxt), items)
         return _QueueCarry(lane=lane, items=items, iters=jnp.where(ended, 0, iters), total=jnp.where(fin, 0, total),
-                           seed=seed, best=best, best_e2=best_e2, mark=mark, head=c.head + jnp.sum(fin, dtype=jnp.int32),
+                           seed=seed, best=best, best_e2=best_e2, mark=mark,
+                           head=c.head + jnp.sum(fin, dtype=jnp.int32),
                            out=out, out_iters=out_iters)
 
     zeros = jnp.zeros((lanes,), jnp.int32)
     start = take(lane0)
     c0 = _QueueCarry(lane=lane0, items=start, iters=zeros, total=zeros, seed=zeros, best=start if multi else None,
-                     best_e2=inf if multi else None, mark=inf, head=jnp.asarray(lanes, jnp.int32), out=items0,
+                     best_e2=inf if multi else None, mark=inf if multi and stall is not None else None,
+                     head=jnp.asarray(lanes, jnp.int32), out=items0,
                      out_iters=jnp.zeros((N,), jnp.int32))
     c = lax.while_loop(lambda c: jnp.any(c.lane < N), body, c0)
     return c.out, c.out_iters
