@@ -118,7 +118,7 @@ def limits_case(record, n_sets=1000):
                                 ("lm_free", ik.humanoid(np.float32, limits=False), lm)):
         fn = jax.jit(lambda t, model=model, solver=solver: ik.solve(model, t, solver=solver, effectors=eff,
                                                                     early_exit=True))
-        timing = time_call(fn, T, repeats=2)  # every solver on the same sets
+        timing = time_call(fn, T, repeats=5)  # every solver on the same sets
         res = fn(T)
         conv = np.asarray(res.converged)
         extra = {"mean_iterations": float(jnp.mean(res.iterations)),

@@ -43,10 +43,11 @@ from .._dataclass import pytree_dataclass
 from .._geometry import quat as _quat
 from .._geometry.horn import best_rotation
 from ._projection import hinge_angle
+from ._limb_start import limb_start
 from ._loop import masked_sweeps, refill_sweeps
 from ._pose import reachable_flags
 from ._result import IKResult
-from ._starts import best_of
+from ._starts import SWIVELS, best_of
 from ._residual import Dofs, LMProblem, _dofs, _perturb, _residual_at, jacobian_at
 from ._stacked import angle_errors, apply_bounds, bounds, fk_stacked, project_stacked, take
 
@@ -149,8 +150,12 @@ class LMItem:
     prob: LMProblem
 
 
-def _lm_start(offsets, targets, local0, weights, table, orients, orient_weights, damping, *, topo):
-    """The start of one set (``local0 (J, 4)``): its state and problem."""
+def _lm_start(offsets, targets, local0, weights, table, orients, orient_weights, damping, limbs=False, swivel=None,
+              *, topo):
+    """The start of one set (``local0 (J, 4)``): its state and problem.  The root is turned toward
+    the targets (``_aligned_root``); with ``limbs`` (a bool, or a traced one) the limbs are bent and
+    swung toward them too, turned by ``swivel`` (rad) about their target lines
+    (``_limb_start``), where that lowers the cost."""
     dtype = offsets.dtype
     prob = LMProblem(targets, weights, orients, None if orients is None else orient_weights)
     dofs = _dofs(topo, table, orients is not None)
@@ -159,6 +164,12 @@ def _lm_start(offsets, targets, local0, weights, table, orients, orient_weights,
     if len(topo.effectors) > 1 and dofs.joints and dofs.joints[0] == 0 and not dofs.hinge[0]:
         L0, P0, G0 = _aligned_root(topo, offsets, L0, P0, G0, prob, bounds(table, dofs.joints))
     r0, e0 = _residual_at(topo, P0, G0, prob)
+    L1 = limb_start(topo, table, L0, P0, G0, targets, swivel) if limbs is not False else L0
+    if L1 is not L0:
+        P1, G1 = fk_stacked(topo.parents, offsets, L1)
+        r1, e1 = _residual_at(topo, P1, G1, prob)
+        ok = (jnp.sum(r1 * r1) < jnp.sum(r0 * r0)) & limbs
+        L0, P0, G0, r0, e0 = (jnp.where(ok, a, b) for a, b in ((L1, L0), (P1, P0), (G1, G0), (r1, r0), (e1, e0)))
     return LMItem(LMState(rotations=L0, damping=jnp.asarray(damping, dtype), cost=jnp.sum(r0 * r0), sq_error=e0,
                           positions=P0, frames=G0), prob)
 
@@ -192,13 +203,15 @@ def _lm_sweep(s: LMState, prob: LMProblem, offsets, table, *, topo):
     return new, new.sq_error
 
 
-def lm_one(offsets, targets, local0, weights, tol, table, orients, orient_weights, damping, *, topo, max_iters,
-           trace, early_exit):
-    """One LM solve: ``targets (E, 3)``, ``local0 (J, 4)``, ``orients (E, 4)`` or ``None``.
+def lm_one(offsets, targets, local0, weights, tol, table, orients, orient_weights, damping, limbs=False, swivel=None, *,
+           topo, max_iters, trace, early_exit):
+    """One LM solve: ``targets (E, 3)``, ``local0 (J, 4)``, ``orients (E, 4)`` or ``None``; ``limbs``,
+    ``swivel``: as :func:`_lm_start`.
 
     Returns the ``IKResult`` of one target (``rotations (J, 4)``, ``error (E,)``, ...).
     """
-    start = _lm_start(offsets, targets, local0, weights, table, orients, orient_weights, damping, topo=topo)
+    start = _lm_start(offsets, targets, local0, weights, table, orients, orient_weights, damping, limbs, swivel,
+                      topo=topo)
     s0, prob, e0 = start.state, start.prob, start.state.sq_error
     if _dofs(topo, table, orients is not None).n == 0:
         state, iters, errs = s0, jnp.zeros((), jnp.int32), (jnp.broadcast_to(jnp.sqrt(e0), (max_iters,))
@@ -242,12 +255,16 @@ def queue_lanes(n: int) -> int:
     return min(n, max(32, n // 32))
 
 
-@functools.partial(jax.jit, static_argnames=("topo", "max_iters", "trace", "early_exit"))
+@functools.partial(jax.jit, static_argnames=("topo", "max_iters", "trace", "early_exit", "limbs"))
 def run_lm(offsets, targets, local0, weights, tol, table, orients, orient_weights, damping, extra=None, *, topo,
-           max_iters, trace, early_exit=False):
+           max_iters, trace, early_exit=False, limbs=False):
     """LM IK over a flat batch: ``targets (N, E, 3)``, ``local0 (N, J, 4)``, ``orients (N, E, 4)`` or
     ``None``; ``weights``/``orient_weights`` ``(E,)``; ``extra (K - 1, J, 4)``, the further starts
     of ``LevenbergMarquardt(seeds=K)``, or ``None``.  Returns a batch-leading ``IKResult``.
+
+    ``limbs`` (static): the given start gets the limb start (``_limb_start``; for the default
+    start, not for a caller's); the further starts always do, start ``k`` with
+    ``_starts.SWIVELS[k]``.
 
     With ``early_exit``, no trace and ``N >= QUEUE_MIN``, the sets go through a work queue
     (``_loop.refill_sweeps``): the same iterations per set, and about ``mean / max`` of
@@ -257,34 +274,38 @@ def run_lm(offsets, targets, local0, weights, tol, table, orients, orient_weight
     """
     N = targets.shape[0]
     K = 1 if extra is None else 1 + extra.shape[0]
+    swivels = jnp.asarray(SWIVELS, offsets.dtype)
     if not (early_exit and not trace and N >= QUEUE_MIN and _dofs(topo, table, orients is not None).n):
         one = functools.partial(lm_one, topo=topo, max_iters=max_iters, trace=trace, early_exit=early_exit)
         axes = (None, 0, 0, None, None, None, None if orients is None else 0, None, None)
         if K == 1:
-            return jax.vmap(one, in_axes=axes)(offsets, targets, local0, weights, tol, table, orients, orient_weights,
-                                               damping)
+            return jax.vmap(lambda *a: one(*a, limbs), in_axes=axes)(offsets, targets, local0, weights, tol, table,
+                                                                     orients, orient_weights, damping)
         starts = jnp.concatenate([local0[:, None], jnp.broadcast_to(extra, (N,) + extra.shape)], axis=1)
+        k = jnp.tile(jnp.arange(K), N)
 
         def flat(a):
             return None if a is None else jnp.repeat(a, K, axis=0)
 
-        res = jax.vmap(one, in_axes=axes)(offsets, flat(targets), starts.reshape((N * K,) + local0.shape[1:]), weights,
-                                          tol, table, flat(orients), orient_weights, damping)
+        res = jax.vmap(one, in_axes=axes + (0, 0))(offsets, flat(targets), starts.reshape((N * K,) + local0.shape[1:]),
+                                                   weights, tol, table, flat(orients), orient_weights, damping,
+                                                   (k > 0) | limbs, swivels[k % len(SWIVELS)])
         return best_of(res, N, K)
     start = functools.partial(_lm_start, topo=topo)
     axes = (None, 0, 0, None, None, None if orients is None else 0, None, None)
-    items0 = jax.vmap(start, in_axes=axes)(offsets, targets, local0, weights, table, orients, orient_weights, damping)
+    items0 = jax.vmap(lambda *a: start(*a, limbs), in_axes=axes)(offsets, targets, local0, weights, table, orients,
+                                                                 orient_weights, damping)
 
     def sweep(it: LMItem):
         new, e2 = _lm_sweep(it.state, it.prob, offsets, table, topo=topo)
         return LMItem(new, it.prob), e2
 
     def restart(items: LMItem, k):
-        def one(p: LMProblem, L0):
-            return _lm_start(offsets, p.targets, L0, p.weights, table, p.orients, p.orient_weights, damping,
+        def one(p: LMProblem, L0, sw):
+            return _lm_start(offsets, p.targets, L0, p.weights, table, p.orients, p.orient_weights, damping, True, sw,
                              topo=topo)
 
-        return jax.vmap(one)(items.prob, extra[k - 1])
+        return jax.vmap(one)(items.prob, extra[k - 1], swivels[k % len(SWIVELS)])
 
     out, iters = refill_sweeps(jax.vmap(sweep), items0, items0.state.sq_error, tol, max_iters=max_iters,
                                lanes=queue_lanes(N), seeds=K, restart=restart, stall=STALL)

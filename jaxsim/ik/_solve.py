@@ -59,7 +59,8 @@ def solve_ik(settings, model, targets, *, rotations=None, effectors=None, weight
         raise ValueError("early_exit=True runs the sweeps in a lax.while_loop, which JAX differentiates in forward "
                          "mode only (jax.jvp, jax.jacfwd); for jax.grad use early_exit=False (the default scan), or "
                          "implicit_diff=True, which never differentiates the sweeps")
-    if rotations is None and isinstance(settings, LevenbergMarquardt):
+    own_start = rotations is None  # LM bends the limbs of its own start, not of a caller's
+    if own_start and isinstance(settings, LevenbergMarquardt):
         rotations = default_start(model)
     inp = check_inputs(model, targets, rotations, effectors, weights, orientations, orientation_weights)
     table = limit_table(model)
@@ -82,14 +83,15 @@ def solve_ik(settings, model, targets, *, rotations=None, effectors=None, weight
                        early_exit=early_exit, implicit_diff=implicit_diff, sharded=False)
         return jax.tree_util.tree_map(lambda a: a.reshape(batch + a.shape[1:]), _sharding.unpad(res, pad))
     res = _run(settings, model, inp, topo, table, lean, trace=bool(trace), unroll=unroll,
-               early_exit=bool(early_exit), stop=bool(implicit_diff))
+               early_exit=bool(early_exit), stop=bool(implicit_diff), limbs=own_start)
     if implicit_diff:
         res = _implicit(model, inp, topo, res, settings.tol)
     return res
 
 
-def _run(settings, model, inp: Inputs, topo, table, lean, *, trace, unroll, early_exit, stop) -> IKResult:
-    """The selected kernel on the checked inputs (``stop``: no derivatives through it)."""
+def _run(settings, model, inp: Inputs, topo, table, lean, *, trace, unroll, early_exit, stop, limbs=False) -> IKResult:
+    """The selected kernel on the checked inputs (``stop``: no derivatives through it; ``limbs``:
+    LM's given start gets the limb start, ``_lm.run_lm``)."""
     batch, dtype, J = inp.batch, model.offsets.dtype, model.num_joints
     n = int(np.prod(batch, dtype=np.int64))
     offsets, targets, rotations = model.offsets, inp.targets, inp.rotations
@@ -117,7 +119,7 @@ def _run(settings, model, inp: Inputs, topo, table, lean, *, trace, unroll, earl
             return None if a is None else a.reshape((n,) + a.shape[-2:])
 
         res = run_lm(offsets, flat(targets), rot, inp.weights, tol, table, flat(orients), inp.orientation_weights,
-                     jnp.asarray(settings.damping, dtype), extra, topo=topo, **kw)
+                     jnp.asarray(settings.damping, dtype), extra, topo=topo, limbs=limbs, **kw)
         return jax.tree_util.tree_map(lambda x: x.reshape(batch + x.shape[1:]), res)
     res = run_tree(offsets, tgt, start, inp.weights, tol, table,
                    None if orients is None else jnp.moveaxis(orients, (-2, -1), (0, 1)), inp.orientation_weights,
