@@ -177,6 +177,8 @@ class _QueueCarry:
       best, best_e2: ``seeds > 1`` only (else ``None``): each lane's best finished start so far
         and its squared error (``inf`` before the first).
       mark: with ``stall`` only (else ``None``): each lane's squared error at its last stall check.
+      wait: ``seeds > 1`` only (else ``None``): ``(W,)`` bool, the lanes whose next start is still
+        to be computed (they sweep no more until it is).
       head: ``()`` int32, queue entries handed out so far.
       out: every item's result (leading axis ``N``); out_iters: ``(N,)`` int32.
     """
@@ -189,6 +191,7 @@ class _QueueCarry:
     best: Any
     best_e2: jax.Array | None
     mark: jax.Array | None
+    wait: jax.Array | None
     head: jax.Array
     out: Any
     out_iters: jax.Array
@@ -197,6 +200,13 @@ class _QueueCarry:
 def _rows_where(c, a, b):
     """``jnp.where`` per leading row: ``c (W,)`` against leaves ``(W, ...)``."""
     return jax.tree_util.tree_map(lambda x, y: jnp.where(c.reshape(c.shape + (1,) * (x.ndim - 1)), x, y), a, b)
+
+
+#: With ``seeds > 1``, at most ``lanes // RESTART_SHARE`` lanes get their next start per sweep
+#: (the rest wait a sweep): a restart (the limited humanoid's: projection, root alignment,
+#: limb start, three FK passes) costs about three sweeps of all lanes, and computing it for
+#: every lane whenever one needed it was most of ``seeds=8``'s time (docs/notebook.md).
+RESTART_SHARE = 8
 
 
 def refill_sweeps(sweep, items0, e2_0, tol, *, max_iters, lanes, seeds=1, restart=None, stall=None):
@@ -237,8 +247,18 @@ def refill_sweeps(sweep, items0, e2_0, tol, *, max_iters, lanes, seeds=1, restar
     def take(idx):
         return jax.tree_util.tree_map(lambda a: a[jnp.minimum(idx, N - 1)], items0)
 
+    slots = max(1, lanes // RESTART_SHARE)  # restarts computed per sweep, at most
+
+    def restart_some(items, wait, seed):
+        """The first ``slots`` waiting lanes started afresh: ``(items, wait)``."""
+        idx = jnp.argsort((~wait).astype(jnp.int32), stable=True)[:slots]
+        sel = wait[idx]
+        sub = jax.tree_util.tree_map(lambda a: a[idx], items)
+        fresh = _rows_where(sel, restart(sub, seed[idx]), sub)
+        return jax.tree_util.tree_map(lambda a, f: a.at[idx].set(f), items, fresh), wait.at[idx].set(False)
+
     def body(c: _QueueCarry) -> _QueueCarry:
-        active = c.lane < N
+        active = c.lane < N if c.wait is None else (c.lane < N) & ~c.wait
         new, e2 = sweep(c.items)
         iters, total = c.iters + active.astype(jnp.int32), c.total + active.astype(jnp.int32)
         hit = e2 <= tol2
@@ -264,16 +284,17 @@ def refill_sweeps(sweep, items0, e2_0, tol, *, max_iters, lanes, seeds=1, restar
         nxt = queue[jnp.clip(src, 0, N - 1)]
         lane = jnp.where(refill, nxt, jnp.where(fin, N, c.lane))
         items = _rows_where(active, new, c.items)
-        seed = c.seed
+        seed, wait = c.seed, c.wait
         if multi:
             seed = jnp.where(again, seed + 1, jnp.where(fin, 0, seed))
-            items = lax.cond(jnp.any(again), lambda: _rows_where(again, restart(items, seed), items), lambda: items)
+            wait = wait | again
+            items, wait = lax.cond(jnp.any(wait), restart_some, lambda i, w, s: (i, w), items, wait, seed)
             best_e2 = jnp.where(fin, jnp.inf, best_e2)
             if mark is not None:
                 mark = jnp.where(ended, jnp.inf, mark)
         items = _rows_where(refill, take(nxt), items)
         return _QueueCarry(lane=lane, items=items, iters=jnp.where(ended, 0, iters), total=jnp.where(fin, 0, total),
-                           seed=seed, best=best, best_e2=best_e2, mark=mark,
+                           seed=seed, best=best, best_e2=best_e2, mark=mark, wait=wait,
                            head=c.head + jnp.sum(fin, dtype=jnp.int32),
                            out=out, out_iters=out_iters)
 
@@ -281,6 +302,7 @@ def refill_sweeps(sweep, items0, e2_0, tol, *, max_iters, lanes, seeds=1, restar
     start = take(lane0)
     c0 = _QueueCarry(lane=lane0, items=start, iters=zeros, total=zeros, seed=zeros, best=start if multi else None,
                      best_e2=inf if multi else None, mark=inf if multi and stall is not None else None,
+                     wait=jnp.zeros((lanes,), bool) if multi else None,
                      head=jnp.asarray(lanes, jnp.int32), out=items0,
                      out_iters=jnp.zeros((N,), jnp.int32))
     c = lax.while_loop(lambda c: jnp.any(c.lane < N), body, c0)
