@@ -30,7 +30,6 @@ from ._projection import about, clamp_range, hinge_angle, safe_atan2
 from ._stacked import apply_bounds, bounds, take
 
 
-
 @functools.lru_cache(maxsize=None)
 def limbs(parents: tuple, effectors: tuple, kinds: tuple) -> tuple:
     """Static ``((slot, ball, hinge, effector), ...)``: per effector slot, its limb, if it has

@@ -23,6 +23,8 @@ SEED_AMPLITUDES = (0.5, 1.0, 1.5)
 #: Where in its range each hinge of the extra starts sits, in turn (fractions of ``[lo, hi]``):
 #: spread over the range, since the limited humanoid's failures are mostly limb configurations
 #: (docs/notebook.md: ``seeds=8`` 97.0% -> 97.8% converged against hinges turned at random).
+#: A limb's hinge is then set again by LM's limb start (``_limb_start``); these fractions stay
+#: for the hinges that are in no limb (a chain of hinges).
 HINGE_FRACTIONS = (0.1, 0.9, 0.3, 0.7, 0.2, 0.8, 0.4, 0.6)
 #: The swivel (rad) of start ``k``'s limbs about their target lines (``_limb_start``), ``k % 8``:
 #: the elbow or knee on another side.  On the limited humanoid, ``seeds=8``: 97.3% converged with
