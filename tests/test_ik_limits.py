@@ -96,9 +96,6 @@ def test_limit_specs_and_skeleton_reject_bad_input():
         ik.solve(sk, t, effectors=(3, 5), orientations=np.tile([1.0, 0, 0, 0], (2, 1)), orientation_weights=[1, -1])
     with pytest.raises(ValueError, match="out of range"):
         ik.solve(sk, t, solver="lm", effectors=(3, 9))
-    with pytest.raises(ValueError, match="implicit_diff"):
-        ik.solve(sk.with_limits((None, None, ik.Hinge((0, 0, 1), 0, 1), None, None, None)), t, effectors=(3, 5),
-                 implicit_diff=True)
     with pytest.raises(ValueError, match="damping"):
         ik.LevenbergMarquardt(damping=0.0)
     assert ik.humanoid(limits=False).limits is None

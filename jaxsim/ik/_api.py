@@ -39,7 +39,8 @@ def solve(model, targets, *, solver=None, rotations=None, effectors=None, weight
         targets converge early, forward-mode differentiation only.
       implicit_diff: differentiate the returned solution by the implicit function
         theorem (``jaxsim.ik._implicit``) instead of through the sweeps: no memory per
-        sweep, least-change rotations derivative.  Free skeletons, positions only.
+        sweep, least-change rotations derivative.  With limits the bounds the solution
+        sits on are held; orientation targets are differentiated too.
       sharded: ``None`` splits a chain's batch across all local devices when there are
         several (``jaxsim._sharding``); ``True`` insists, ``False`` keeps one device.
       orientations: ``(..., E, 4)`` unit quaternions, the effectors' target world

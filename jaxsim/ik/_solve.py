@@ -9,8 +9,6 @@ vmapped solve (``_lm``).  Results have the same shapes on every path.
 
 from __future__ import annotations
 
-import functools
-
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -26,9 +24,11 @@ from ._kernel import bent_start, run_chain, run_tree
 from ._limits import limit_table
 from ._lm import run_lm
 from ._starts import default_start, extra_starts
+from ._residual import LMProblem, _dofs
 from ._result import IKResult
 from ._settings import CCD, FABRIK, LevenbergMarquardt
 from ._skeleton import topology
+from ._stacked import angle_errors
 
 
 def lean_chain(settings, topo, table, orientations) -> bool:
@@ -66,9 +66,6 @@ def solve_ik(settings, model, targets, *, rotations=None, effectors=None, weight
     table = limit_table(model)
     topo = topology(model.parents, inp.effectors)
     lean = lean_chain(settings, topo, table, inp.orientations)
-    if implicit_diff and (table is not None or inp.orientations is not None):
-        raise ValueError("implicit_diff=True needs a free skeleton without orientation targets (the implicit "
-                         "derivative ignores active limits); differentiate through the sweeps instead")
     if sharded and not lean:
         raise ValueError("sharded=True is supported for the lean chain kernel only (FABRIK or CCD on a chain solved "
                          "for its end, free, positions only); split the batch yourself")
@@ -85,7 +82,7 @@ def solve_ik(settings, model, targets, *, rotations=None, effectors=None, weight
     res = _run(settings, model, inp, topo, table, lean, trace=bool(trace), unroll=unroll,
                early_exit=bool(early_exit), stop=bool(implicit_diff), limbs=own_start)
     if implicit_diff:
-        res = _implicit(model, inp, topo, res, settings.tol)
+        res = _implicit(model, inp, topo, table, res, settings.tol)
     return res
 
 
@@ -127,15 +124,30 @@ def _run(settings, model, inp: Inputs, topo, table, lean, *, trace, unroll, earl
     return _batch_last(res, batch)
 
 
-def _implicit(model, inp: Inputs, topo, res: IKResult, tol) -> IKResult:
-    """The solution with implicit-function derivatives (``_implicit``), its FK and errors."""
-    ift = functools.partial(implicit_rotations, topo)
-    for _ in inp.batch:
-        ift = jax.vmap(ift, in_axes=(0, None, 0, None, 0))
-    tg = jnp.broadcast_to(inp.targets, inp.batch + inp.targets.shape[-2:])
+def _implicit(model, inp: Inputs, topo, table, res: IKResult, tol) -> IKResult:
+    """The solution with implicit-function derivatives (``_implicit``; active limits held),
+    its FK and errors."""
+    orient = inp.orientations is not None
+    dofs = _dofs(topo, table, orient)
+    batch = inp.batch
+    tg = jnp.broadcast_to(inp.targets, batch + inp.targets.shape[-2:])
     met = jnp.all(res.reachable & (res.error <= tol), axis=-1)
-    local = ift(res.rotations, model.offsets, tg, inp.weights, met)
-    P = fk(model, local).positions
+    orients = None
+    if orient:
+        orients = jnp.broadcast_to(inp.orientations, batch + inp.orientations.shape[-2:])
+        met = met & jnp.all(inp.orientation_weights * res.angle_error <= tol, axis=-1)
+
+    def one(q, targets, ors, gn):
+        prob = LMProblem(targets, inp.weights, ors, inp.orientation_weights)
+        return implicit_rotations(topo, dofs, q, model.offsets, prob, table, gn)
+
+    ift = one
+    for _ in batch:
+        ift = jax.vmap(ift, in_axes=(0, 0, None if orients is None else 0, 0))
+    local = ift(res.rotations, tg, orients, met)
+    pose = fk(model, local)
+    P = pose.positions
     err = jnp.sqrt(jnp.sum((P[..., list(inp.effectors), :] - tg) ** 2, axis=-1))
+    ang = None if orients is None else angle_errors(pose.rotations, inp.effectors, orients)
     return IKResult(rotations=local, positions=P, error=err, iterations=res.iterations, converged=res.converged,
-                    reachable=res.reachable, trace=res.trace, angle_error=res.angle_error)
+                    reachable=res.reachable, trace=res.trace, angle_error=ang)
