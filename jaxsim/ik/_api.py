@@ -10,7 +10,7 @@ from ._solve import solve_ik
 def solve(model, targets, *, solver=None, rotations=None, effectors=None, weights=None,
           max_iters: int | None = None, tol=None, trace: bool = False, unroll: bool | None = None,
           early_exit: bool = False, implicit_diff: bool = False, sharded: bool | None = None, orientations=None,
-          orientation_weights=None) -> IKResult:
+          orientation_weights=None, poles=None) -> IKResult:
     """Batched IK on a ``Skeleton`` (a chain is one) over any leading shape of ``targets``.
 
     Args:
@@ -47,6 +47,12 @@ def solve(model, targets, *, solver=None, rotations=None, effectors=None, weight
         orientations; ``None`` = positions only.
       orientation_weights: ``(E,)`` scene units per radian (default 0.1): the angle error
         weighs as ``weight * angle``, and ``converged`` needs it within ``tol`` too.
+      poles: ``{joint: point (..., 3)}``, LM only: each named middle joint of a limb (an
+        elbow, a knee: the limb runs from its parent to the one effector below it) bends
+        toward its pole point, into the half-plane of the line from the limb's root to its
+        end and the pole.  A pole's residual (the chord from the middle joint to that
+        half-plane, scene units) joins LM's, and ``converged`` needs it within ``tol`` too.
+        LM's start turns each hinge limb toward its pole (as :func:`two_bone`).
 
     Returns:
       ``IKResult`` with ``error``, ``reachable`` and ``angle_error`` ``(..., E)``.  Sweeps
@@ -57,11 +63,12 @@ def solve(model, targets, *, solver=None, rotations=None, effectors=None, weight
       offsets and the start rotations).
     """
     if solver is None:
-        solver = "lm" if getattr(model, "limits", None) is not None or orientations is not None else "fabrik"
+        lm = getattr(model, "limits", None) is not None or orientations is not None or poles is not None
+        solver = "lm" if lm else "fabrik"
     return solve_ik(resolve_settings(solver, max_iters, tol), model, targets, rotations=rotations,
                     effectors=effectors, weights=weights, orientations=orientations,
                     orientation_weights=orientation_weights, trace=trace, unroll=unroll, early_exit=early_exit,
-                    implicit_diff=implicit_diff, sharded=sharded)
+                    implicit_diff=implicit_diff, sharded=sharded, poles=poles)
 
 
 def ccd(model, targets, *, rotations=None, effectors=None, weights=None, max_iters: int = DEFAULT_MAX_ITERS,

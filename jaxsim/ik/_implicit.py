@@ -13,7 +13,7 @@ stationarity on the held bounds gives
 
     dd = -(Pi H Pi)^+ Pi (d/dtheta grad_d f) dtheta,   H = d^2 f / dd^2 - sum_i mu_i d^2 c_i / dd^2
 
-at ``d = 0``, for ``theta`` the offsets, targets and target orientations: ``H`` is the
+at ``d = 0``, for ``theta`` the offsets, targets, target orientations and poles: ``H`` is the
 Hessian of the Lagrangian, with ``c_i`` the held bounds as functions of ``d``, so that it
 is the curvature of ``f`` restricted to them (Fiacco 1976, sensitivity of a constrained
 minimum).  IK is redundant, so ``H`` is
@@ -29,6 +29,7 @@ the limits themselves are not differentiated.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 
 import jax
@@ -147,9 +148,9 @@ def _implicit_rotations_jvp(topo, dofs, primals, tangents):
     if A.shape[0]:  # the Lagrangian's Hessian: grad f = A^T mu on the held bounds
         mu = jnp.linalg.pinv(A.T, rtol=rtol) @ _objective_grad(topo, dofs, table, d0, q, offsets, prob)
         H = H - jnp.einsum("k,kij->ij", mu, C)
-    # only the targets and orientations move (the weights are not differentiated)
-    prob_dot = LMProblem(prob_dot.targets, jnp.zeros_like(prob.weights), prob_dot.orients,
-                         None if prob.orient_weights is None else jnp.zeros_like(prob.orient_weights))
+    # the targets, orientations and poles move (the weights are not differentiated)
+    prob_dot = dataclasses.replace(prob_dot, weights=jnp.zeros_like(prob.weights), orient_weights=(
+        None if prob.orient_weights is None else jnp.zeros_like(prob.orient_weights)))
     rhs = jax.jvp(lambda o, p: _objective_grad(topo, dofs, table, d0, q, o, p), (offsets, prob),
                   (off_dot, prob_dot))[1]
     dd = -(jnp.linalg.pinv(Pi @ H @ Pi, rtol=rtol, hermitian=True) @ (Pi @ rhs))

@@ -53,11 +53,13 @@ def limbs(parents: tuple, effectors: tuple, kinds: tuple) -> tuple:
     return tuple(a for a in found if not any(o is not a and below(o[1], a[1]) for o in found))
 
 
-def limb_start(topo, table, L, P, G, targets, swivel=None):
+def limb_start(topo, table, L, P, G, targets, swivel=None, prob=None):
     """The start ``L (J, 4)`` (FK ``P (J, 3)``, ``G (J, 4)``) with every limb of :func:`limbs`
     bent to its target's distance and swung toward it (``targets (E, 3)``), then turned by
     ``swivel`` (rad, a scalar; ``None``: no turn) about the line from its ball joint to the
-    target; ``L`` itself when the skeleton has no limb."""
+    target, or, for a limb whose hinge has a pole (``prob``'s ``poles`` and ``pole_limbs``),
+    by the turn that puts the hinge on its pole's side (the plane of the line and the pole,
+    as ``two_bone``); ``L`` itself when the skeleton has no limb."""
     if table is None:
         return L
     found = limbs(tuple(topo.parents), tuple(topo.effectors), tuple(table.kinds))
@@ -95,8 +97,22 @@ def limb_start(topo, table, L, P, G, targets, swivel=None):
     reach = _quat.rotate(to_parent, _quat.add(u, _quat.rotate(about(new - theta, om), v)))
     line = _quat.rotate(to_parent, w)
     turn = _quat.from_two_vectors(reach, line)
+    ell = _quat.normalize(line, _quat.perpendicular(line))
+    poled = {t[1]: k for k, t in enumerate(getattr(prob, "pole_limbs", ()))} if getattr(prob, "poles", None) is not None else {}
+    has = [h in poled for h in hinge]
+    if any(has):  # the turn about the line that brings the hinge to its pole's side
+        pole = q(take(prob.poles, tuple(poled.get(h, 0) for h in hinge), axis=0), axis=-1)
+
+        def across(x):
+            return _quat.sub(x, _quat.scale(_quat.dot(x, ell), ell))
+
+        m = across(_quat.rotate(turn, _quat.rotate(to_parent, u)))
+        p = across(_quat.rotate(to_parent, _quat.sub(pole, pb)))
+        to_pole = safe_atan2(_quat.dot(ell, _quat.cross(m, p)), _quat.dot(m, p))
+        base = jnp.zeros_like(to_pole) if swivel is None else jnp.asarray(swivel, L.dtype)
+        swivel = jnp.where(np.asarray(has), to_pole, base)
     if swivel is not None:
-        turn = _quat.mul(about(jnp.asarray(swivel, L.dtype), _quat.normalize(line, _quat.perpendicular(line))), turn)
+        turn = _quat.mul(about(jnp.asarray(swivel, L.dtype), ell), turn)
     Lb = _quat.mul(turn, q(take(L, ball, axis=0), axis=-1))
     L = L.at[np.asarray(hinge)].set(_quat.stack(about(new, axis), axis=-1))
     return apply_bounds(bounds(table, ball), L.at[np.asarray(ball)].set(_quat.stack(Lb, axis=-1)))

@@ -48,7 +48,7 @@ from ._loop import masked_sweeps, refill_sweeps
 from ._pose import reachable_flags
 from ._result import IKResult
 from ._starts import SWIVELS, best_of
-from ._residual import Dofs, LMProblem, _dofs, _perturb, _residual_at, jacobian_at
+from ._residual import Dofs, LMProblem, _dofs, _perturb, _pole_residuals, _residual_at, jacobian_at
 from ._stacked import angle_errors, apply_bounds, bounds, fk_stacked, project_stacked, take
 
 #: Bounds on the relative damping ``lambda``; the lower one is ``LAMBDA_MIN_EPS`` machine epsilons.
@@ -151,20 +151,21 @@ class LMItem:
 
 
 def _lm_start(offsets, targets, local0, weights, table, orients, orient_weights, damping, limbs=False, swivel=None,
-              *, topo):
+              *, topo, poles=None, pole_limbs=()):
     """The start of one set (``local0 (J, 4)``): its state and problem.  The root is turned toward
     the targets (``_aligned_root``); with ``limbs`` (a bool, or a traced one) the limbs are bent and
-    swung toward them too, turned by ``swivel`` (rad) about their target lines
-    (``_limb_start``), where that lowers the cost."""
+    swung toward them too, turned by ``swivel`` (rad) about their target lines, or toward their
+    poles (``poles (K, 3)`` of the limbs ``pole_limbs``; ``_limb_start``), where that lowers the cost."""
     dtype = offsets.dtype
-    prob = LMProblem(targets, weights, orients, None if orients is None else orient_weights)
+    prob = LMProblem(targets, weights, orients, None if orients is None else orient_weights, poles,
+                     pole_limbs if poles is not None else ())
     dofs = _dofs(topo, table, orients is not None)
     L0 = project_stacked(table, local0)
     P0, G0 = fk_stacked(topo.parents, offsets, L0)
     if len(topo.effectors) > 1 and dofs.joints and dofs.joints[0] == 0 and not dofs.hinge[0]:
         L0, P0, G0 = _aligned_root(topo, offsets, L0, P0, G0, prob, bounds(table, dofs.joints))
     r0, e0 = _residual_at(topo, P0, G0, prob)
-    L1 = limb_start(topo, table, L0, P0, G0, targets, swivel) if limbs is not False else L0
+    L1 = limb_start(topo, table, L0, P0, G0, targets, swivel, prob) if limbs is not False else L0
     if L1 is not L0:
         P1, G1 = fk_stacked(topo.parents, offsets, L1)
         r1, e1 = _residual_at(topo, P1, G1, prob)
@@ -204,14 +205,14 @@ def _lm_sweep(s: LMState, prob: LMProblem, offsets, table, *, topo):
 
 
 def lm_one(offsets, targets, local0, weights, tol, table, orients, orient_weights, damping, limbs=False, swivel=None, *,
-           topo, max_iters, trace, early_exit):
+           topo, max_iters, trace, early_exit, poles=None, pole_limbs=()):
     """One LM solve: ``targets (E, 3)``, ``local0 (J, 4)``, ``orients (E, 4)`` or ``None``; ``limbs``,
-    ``swivel``: as :func:`_lm_start`.
+    ``swivel``, ``poles (K, 3)``, ``pole_limbs``: as :func:`_lm_start`.
 
     Returns the ``IKResult`` of one target (``rotations (J, 4)``, ``error (E,)``, ...).
     """
     start = _lm_start(offsets, targets, local0, weights, table, orients, orient_weights, damping, limbs, swivel,
-                      topo=topo)
+                      topo=topo, poles=poles, pole_limbs=pole_limbs)
     s0, prob, e0 = start.state, start.prob, start.state.sq_error
     if _dofs(topo, table, orients is not None).n == 0:
         state, iters, errs = s0, jnp.zeros((), jnp.int32), (jnp.broadcast_to(jnp.sqrt(e0), (max_iters,))
@@ -232,6 +233,8 @@ def _result(topo, offsets, L, prob: LMProblem, tol, iters, errs) -> IKResult:
     if prob.orients is not None:
         ang = angle_errors(G, topo.effectors, prob.orients)
         ok = ok & jnp.all(prob.orient_weights * ang <= tol)
+    if prob.poles is not None:  # every pole met too (its residual within tol, m)
+        ok = ok & jnp.all(jnp.sum(_pole_residuals(P, prob) ** 2, axis=-1) <= tol * tol)
     tgt = [_quat.unstack(t) for t in prob.targets]
     return IKResult(rotations=L, positions=P, error=err, iterations=iters, converged=ok,
                     reachable=reachable_flags(topo, offsets, tgt, ()), trace=errs, angle_error=ang)
@@ -255,12 +258,14 @@ def queue_lanes(n: int) -> int:
     return min(n, max(32, n // 32))
 
 
-@functools.partial(jax.jit, static_argnames=("topo", "max_iters", "trace", "early_exit", "limbs"))
+@functools.partial(jax.jit, static_argnames=("topo", "max_iters", "trace", "early_exit", "limbs", "pole_limbs"))
 def run_lm(offsets, targets, local0, weights, tol, table, orients, orient_weights, damping, extra=None, *, topo,
-           max_iters, trace, early_exit=False, limbs=False):
+           max_iters, trace, early_exit=False, limbs=False, poles=None, pole_limbs=()):
     """LM IK over a flat batch: ``targets (N, E, 3)``, ``local0 (N, J, 4)``, ``orients (N, E, 4)`` or
     ``None``; ``weights``/``orient_weights`` ``(E,)``; ``extra (K - 1, J, 4)``, the further starts
-    of ``LevenbergMarquardt(seeds=K)``, or ``None``.  Returns a batch-leading ``IKResult``.
+    of ``LevenbergMarquardt(seeds=K)``, or ``None``; ``poles (N, K, 3)`` or ``None``, the pole
+    points of the limbs ``pole_limbs`` (static ``(root, middle, end)`` triples).  Returns a
+    batch-leading ``IKResult``.
 
     ``limbs`` (static): the given start gets the limb start (``_limb_start``; for the default
     start, not for a caller's); the further starts always do, start ``k`` with
@@ -276,11 +281,16 @@ def run_lm(offsets, targets, local0, weights, tol, table, orients, orient_weight
     K = 1 if extra is None else 1 + extra.shape[0]
     swivels = jnp.asarray(SWIVELS, offsets.dtype)
     if not (early_exit and not trace and N >= QUEUE_MIN and _dofs(topo, table, orients is not None).n):
-        one = functools.partial(lm_one, topo=topo, max_iters=max_iters, trace=trace, early_exit=early_exit)
-        axes = (None, 0, 0, None, None, None, None if orients is None else 0, None, None)
+        part = functools.partial(lm_one, topo=topo, max_iters=max_iters, trace=trace, early_exit=early_exit,
+                                 pole_limbs=pole_limbs)
+
+        def one(off, t, L0, w, tl, tb, o, ow, dm, pl, *more):
+            return part(off, t, L0, w, tl, tb, o, ow, dm, *more, poles=pl)
+
+        axes = (None, 0, 0, None, None, None, None if orients is None else 0, None, None, None if poles is None else 0)
         if K == 1:
             return jax.vmap(lambda *a: one(*a, limbs), in_axes=axes)(offsets, targets, local0, weights, tol, table,
-                                                                     orients, orient_weights, damping)
+                                                                     orients, orient_weights, damping, poles)
         starts = jnp.concatenate([local0[:, None], jnp.broadcast_to(extra, (N,) + extra.shape)], axis=1)
         k = jnp.tile(jnp.arange(K), N)
 
@@ -289,12 +299,14 @@ def run_lm(offsets, targets, local0, weights, tol, table, orients, orient_weight
 
         res = jax.vmap(one, in_axes=axes + (0, 0))(offsets, flat(targets), starts.reshape((N * K,) + local0.shape[1:]),
                                                    weights, tol, table, flat(orients), orient_weights, damping,
-                                                   (k > 0) | limbs, swivels[k % len(SWIVELS)])
+                                                   flat(poles), (k > 0) | limbs, swivels[k % len(SWIVELS)])
         return best_of(res, N, K)
-    start = functools.partial(_lm_start, topo=topo)
-    axes = (None, 0, 0, None, None, None if orients is None else 0, None, None)
-    items0 = jax.vmap(lambda *a: start(*a, limbs), in_axes=axes)(offsets, targets, local0, weights, table, orients,
-                                                                 orient_weights, damping)
+    def start(off, t, L0, w, tb, o, ow, dm, pl):
+        return _lm_start(off, t, L0, w, tb, o, ow, dm, limbs, topo=topo, poles=pl, pole_limbs=pole_limbs)
+
+    axes = (None, 0, 0, None, None, None if orients is None else 0, None, None, None if poles is None else 0)
+    items0 = jax.vmap(start, in_axes=axes)(offsets, targets, local0, weights, table, orients, orient_weights, damping,
+                                           poles)
 
     def sweep(it: LMItem):
         new, e2 = _lm_sweep(it.state, it.prob, offsets, table, topo=topo)
@@ -303,7 +315,7 @@ def run_lm(offsets, targets, local0, weights, tol, table, orients, orient_weight
     def restart(items: LMItem, k):
         def one(p: LMProblem, L0, sw):
             return _lm_start(offsets, p.targets, L0, p.weights, table, p.orients, p.orient_weights, damping, True, sw,
-                             topo=topo)
+                             topo=topo, poles=p.poles, pole_limbs=p.pole_limbs)
 
         return jax.vmap(one)(items.prob, extra[k - 1], swivels[k % len(SWIVELS)])
 

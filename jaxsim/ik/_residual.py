@@ -14,7 +14,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._dataclass import pytree_dataclass
+from .._dataclass import pytree_dataclass, static_field
 from .._geometry import quat as _quat
 from ._pose import moving_joints
 from ._stacked import fk_stacked, frame_axes, sq_errors, take
@@ -28,12 +28,16 @@ class LMProblem:
       targets: ``(E, 3)`` effector targets; weights: ``(E,)``.
       orients: ``(E, 4)`` target orientations (unit quaternions) or ``None``.
       orient_weights: ``(E,)`` scene units per radian, or ``None`` without orientations.
+      poles: ``(K, 3)`` pole points or ``None``; pole_limbs: static ``K`` triples
+        ``(root, middle, end)`` of joints, the limb each pole bends (:func:`pole_rows`).
     """
 
     targets: jax.Array
     weights: jax.Array
     orients: jax.Array | None = None
     orient_weights: jax.Array | None = None
+    poles: jax.Array | None = None
+    pole_limbs: tuple = static_field(default=())
 
 
 @dataclasses.dataclass(frozen=True)
@@ -105,17 +109,45 @@ def _orient_scale(prob: LMProblem):
     return jnp.sqrt(0.5 * prob.weights) * prob.orient_weights
 
 
+def pole_rows(a, m, e, pole):
+    """``(3,)`` a pole's residual on the limb ``a -> m -> e`` (its root, middle joint and end,
+    ``(3,)`` each): ``m_perp - |m_perp| p_hat``, with ``m_perp`` and ``p_perp`` the parts of
+    ``m - a`` and ``pole - a`` across the line from ``a`` to ``e`` and ``p_hat`` the unit
+    ``p_perp``.  Zero when the middle joint lies in the half-plane of the line and the pole
+    (its size is the chord from the middle joint to that half-plane around the line, m),
+    and on a straight limb; zero with zero gradient where the pole is on the line."""
+    u = _quat.normalize(_quat.sub(e, a), (jnp.zeros_like(a[0]),) * 3)
+
+    def across(x):
+        return _quat.sub(x, _quat.scale(_quat.dot(x, u), u))
+
+    mp, pp = across(_quat.sub(m, a)), across(_quat.sub(pole, a))
+    zero = (jnp.zeros_like(a[0]),) * 3
+    return _quat.sub(mp, _quat.scale(_quat.safe_norm(mp), _quat.normalize(pp, zero)))
+
+
+def _pole_residuals(P, prob: LMProblem):
+    """``(K, 3)`` the poles' residuals at FK's ``P (J, 3)``."""
+    a, m, e = (_quat.unstack(take(P, tuple(t[c] for t in prob.pole_limbs), axis=0), axis=-1) for c in range(3))
+    return _quat.stack(pole_rows(a, m, e, _quat.unstack(prob.poles, axis=-1)), axis=-1)
+
+
 def _residual_at(topo, P, G, prob: LMProblem):
     """``(r, worst squared error)`` at FK's ``P (J, 3)``, ``G (J, 4)``: ``r`` stacks the
-    position rows ``(E, 3)`` then the frame-axis rows ``(E, 3, 3)`` (effector, axis, component)."""
+    position rows ``(E, 3)``, then the frame-axis rows ``(E, 3, 3)`` (effector, axis,
+    component), then the pole rows ``(K, 3)``; a pole's squared residual counts as an error."""
     eff = topo.effectors
     pe = take(P, eff, axis=0)
     parts = [(jnp.sqrt(prob.weights)[:, None] * (pe - prob.targets)).reshape(-1)]
     if prob.orients is not None:
         Ru, Tu = frame_axes(take(G, eff, axis=0)), frame_axes(prob.orients)
         parts.append((_orient_scale(prob)[:, None, None] * (Ru - Tu)).reshape(-1))
-    e2 = sq_errors(P, G, eff, prob.targets, prob.orients, prob.orient_weights)
-    return jnp.concatenate(parts), jnp.max(e2)
+    e2 = jnp.max(sq_errors(P, G, eff, prob.targets, prob.orients, prob.orient_weights))
+    if prob.poles is not None:
+        rp = _pole_residuals(P, prob)
+        parts.append(rp.reshape(-1))
+        e2 = jnp.maximum(e2, jnp.max(jnp.sum(rp * rp, axis=-1)))
+    return jnp.concatenate(parts), e2
 
 
 def _residual(topo, offsets, L, prob: LMProblem):
@@ -155,4 +187,27 @@ def jacobian_at(topo, P, G, prob: LMProblem, dofs: Dofs, table):
         Jo = _quat.stack(_quat.cross(tuple(c[None, None] for c in om), _quat.unstack(Ru[:, :, None, :], axis=-1)),
                          axis=2)  # (E, 3, 3, n)
         rows.append((Jo * (_orient_scale(prob)[:, None, None, None] * anc[:, None, None, :])).reshape(-1, dofs.n))
+    if prob.poles is not None:  # the chain rule through the limb's three points' columns
+        K, parents = len(prob.pole_limbs), topo.parents
+        pts = tuple(j for t in prob.pole_limbs for j in t)  # (3K,) root, middle, end per pole
+        moves = np.asarray([[_above(parents, c, x) for c in cj] for x in pts], dtype)  # (3K, n)
+        lever = take(P, pts, axis=0)[:, None, :] - take(P, cj, axis=0)[None]  # (3K, n, 3)
+        Jx = _quat.stack(_quat.cross(om, _quat.unstack(lever, axis=-1)), axis=1) * moves[:, None, :]  # (3K, 3, n)
+        a, m, e = (take(P, tuple(t[c] for t in prob.pole_limbs), axis=0) for c in range(3))
+
+        def one(a, m, e, p):
+            return _quat.stack(pole_rows(_quat.unstack(a), _quat.unstack(m), _quat.unstack(e), _quat.unstack(p)))
+
+        D = jax.vmap(jax.jacfwd(one, argnums=(0, 1, 2)))(a, m, e, prob.poles)  # 3 x (K, 3, 3)
+        Jx = Jx.reshape(K, 3, 3, dofs.n)  # (pole, point, component, n)
+        rows.append(sum(jnp.einsum("kij,kjn->kin", D[c], Jx[:, c]) for c in range(3)).reshape(-1, dofs.n))
     return jnp.concatenate(rows, axis=0), r
+
+
+def _above(parents, j, x) -> bool:
+    """Whether joint ``j`` is ``x`` or one of its ancestors (turning ``j`` moves what hangs below it)."""
+    while x >= 0:
+        if x == j:
+            return True
+        x = parents[x]
+    return False

@@ -20,6 +20,7 @@ from . import _joints
 from ._fk import fk
 from ._implicit import implicit_rotations
 from ._inputs import Inputs, check_flags, check_inputs, check_model
+from ._poles import check_poles
 from ._kernel import bent_start, run_chain, run_tree
 from ._limits import limit_table
 from ._lm import run_lm
@@ -50,7 +51,7 @@ def _batch_last(res: IKResult, batch) -> IKResult:
 
 def solve_ik(settings, model, targets, *, rotations=None, effectors=None, weights=None, orientations=None,
              orientation_weights=None, trace=False, unroll=None, early_exit=False, implicit_diff=False,
-             sharded=None) -> IKResult:
+             sharded=None, poles=None) -> IKResult:
     """Batched IK over any leading shape of ``targets (..., E, 3)``; see :func:`jaxsim.ik.solve`."""
     check_model(model, settings)
     check_flags(("unroll", "sharded"), trace=trace, unroll=unroll, early_exit=early_exit, implicit_diff=implicit_diff,
@@ -63,6 +64,9 @@ def solve_ik(settings, model, targets, *, rotations=None, effectors=None, weight
     if own_start and isinstance(settings, LevenbergMarquardt):
         rotations = default_start(model)
     inp = check_inputs(model, targets, rotations, effectors, weights, orientations, orientation_weights)
+    pole_limbs, pole_points = check_poles(model, poles, inp.effectors, inp.batch)
+    if pole_limbs and not isinstance(settings, LevenbergMarquardt):
+        raise ValueError(f"poles need solver='lm' (jaxsim.ik.LevenbergMarquardt), got {type(settings).__name__}")
     table = limit_table(model)
     topo = topology(model.parents, inp.effectors)
     lean = lean_chain(settings, topo, table, inp.orientations)
@@ -80,15 +84,17 @@ def solve_ik(settings, model, targets, *, rotations=None, effectors=None, weight
                        early_exit=early_exit, implicit_diff=implicit_diff, sharded=False)
         return jax.tree_util.tree_map(lambda a: a.reshape(batch + a.shape[1:]), _sharding.unpad(res, pad))
     res = _run(settings, model, inp, topo, table, lean, trace=bool(trace), unroll=unroll,
-               early_exit=bool(early_exit), stop=bool(implicit_diff), limbs=own_start)
+               early_exit=bool(early_exit), stop=bool(implicit_diff), limbs=own_start, poles=(pole_limbs, pole_points))
     if implicit_diff:
-        res = _implicit(model, inp, topo, table, res, settings.tol)
+        res = _implicit(model, inp, topo, table, res, settings.tol, (pole_limbs, pole_points))
     return res
 
 
-def _run(settings, model, inp: Inputs, topo, table, lean, *, trace, unroll, early_exit, stop, limbs=False) -> IKResult:
+def _run(settings, model, inp: Inputs, topo, table, lean, *, trace, unroll, early_exit, stop, limbs=False,
+         poles=((), None)) -> IKResult:
     """The selected kernel on the checked inputs (``stop``: no derivatives through it; ``limbs``:
-    LM's given start gets the limb start, ``_lm.run_lm``)."""
+    LM's given start gets the limb start, ``_lm.run_lm``; ``poles``: ``(limbs, points (*B, K, 3))``
+    from ``_poles.check_poles``, LM only)."""
     batch, dtype, J = inp.batch, model.offsets.dtype, model.num_joints
     n = int(np.prod(batch, dtype=np.int64))
     offsets, targets, rotations = model.offsets, inp.targets, inp.rotations
@@ -115,8 +121,14 @@ def _run(settings, model, inp: Inputs, topo, table, lean, *, trace, unroll, earl
         def flat(a):
             return None if a is None else a.reshape((n,) + a.shape[-2:])
 
+        pole_limbs, pole_points = poles
+        if pole_points is not None:
+            pole_points = pole_points.reshape((n,) + pole_points.shape[-2:])
+            if stop:
+                pole_points = lax.stop_gradient(pole_points)
         res = run_lm(offsets, flat(targets), rot, inp.weights, tol, table, flat(orients), inp.orientation_weights,
-                     jnp.asarray(settings.damping, dtype), extra, topo=topo, limbs=limbs, **kw)
+                     jnp.asarray(settings.damping, dtype), extra, topo=topo, limbs=limbs, poles=pole_points,
+                     pole_limbs=pole_limbs, **kw)
         return jax.tree_util.tree_map(lambda x: x.reshape(batch + x.shape[1:]), res)
     res = run_tree(offsets, tgt, start, inp.weights, tol, table,
                    None if orients is None else jnp.moveaxis(orients, (-2, -1), (0, 1)), inp.orientation_weights,
@@ -124,7 +136,7 @@ def _run(settings, model, inp: Inputs, topo, table, lean, *, trace, unroll, earl
     return _batch_last(res, batch)
 
 
-def _implicit(model, inp: Inputs, topo, table, res: IKResult, tol) -> IKResult:
+def _implicit(model, inp: Inputs, topo, table, res: IKResult, tol, poles=((), None)) -> IKResult:
     """The solution with implicit-function derivatives (``_implicit``; active limits held),
     its FK and errors."""
     orient = inp.orientations is not None
@@ -137,14 +149,16 @@ def _implicit(model, inp: Inputs, topo, table, res: IKResult, tol) -> IKResult:
         orients = jnp.broadcast_to(inp.orientations, batch + inp.orientations.shape[-2:])
         met = met & jnp.all(inp.orientation_weights * res.angle_error <= tol, axis=-1)
 
-    def one(q, targets, ors, gn):
-        prob = LMProblem(targets, inp.weights, ors, inp.orientation_weights)
+    pole_limbs, pole_points = poles
+
+    def one(q, targets, ors, pl, gn):
+        prob = LMProblem(targets, inp.weights, ors, inp.orientation_weights, pl, pole_limbs)
         return implicit_rotations(topo, dofs, q, model.offsets, prob, table, gn)
 
     ift = one
     for _ in batch:
-        ift = jax.vmap(ift, in_axes=(0, 0, None if orients is None else 0, 0))
-    local = ift(res.rotations, tg, orients, met)
+        ift = jax.vmap(ift, in_axes=(0, 0, None if orients is None else 0, None if pole_points is None else 0, 0))
+    local = ift(res.rotations, tg, orients, pole_points, met)
     pose = fk(model, local)
     P = pose.positions
     err = jnp.sqrt(jnp.sum((P[..., list(inp.effectors), :] - tg) ** 2, axis=-1))
