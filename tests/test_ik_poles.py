@@ -51,6 +51,7 @@ def test_implicit_derivatives_with_respect_to_the_pole_and_target_equal_two_bone
     assert np.abs(np.asarray(got[1])).max() > 0.1  # the pole moves the elbow
 
 
+@pytest.mark.slow
 def test_humanoid_poles_put_every_converged_limb_on_its_pole_side():
     """Elbow poles behind the shoulders and knee poles in front of the hips, 32 reachable sets
     of the limited humanoid: every converged set has each limb on its pole's side (numpy),
