@@ -91,6 +91,7 @@ def test_bad_poles_raise():
         ({"pelvis": ok}, "root is no limb"),
         ({"spine1": ok}, "effectors .* are below it"),
         ({"l_hand": ok}, "0 of the effectors"),
+        ({"l_shoulder": ok}, "is 3 joints below it"),
         ({"nose": ok}, "pole joint 'nose'"),
         ({99: ok}, "pole joint 99"),
         ({"l_elbow": np.array([np.nan, 0.0, 0.0])}, "pole on joint 'l_elbow'"),

@@ -48,7 +48,8 @@ def solve(model, targets, *, solver=None, rotations=None, effectors=None, weight
       orientation_weights: ``(E,)`` scene units per radian (default 0.1): the angle error
         weighs as ``weight * angle``, and ``converged`` needs it within ``tol`` too.
       poles: ``{joint: point (..., 3)}``, LM only: each named middle joint of a limb (an
-        elbow, a knee: the limb runs from its parent to the one effector below it) bends
+        elbow, a knee: the limb runs from its parent to the one effector below it, its
+        child or grandchild) bends
         toward its pole point, into the half-plane of the line from the limb's root to its
         end and the pole.  A pole's residual (the chord from the middle joint to that
         half-plane, scene units) joins LM's, and ``converged`` needs it within ``tol`` too.

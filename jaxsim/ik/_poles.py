@@ -2,8 +2,8 @@
 
 ``solve(..., poles={joint: point})`` names a limb by its middle joint ``m`` (an elbow, a
 knee): the limb runs from ``m``'s parent (the shoulder, the hip) through ``m`` to the one
-effector below it (the hand, the ankle), and the pole point says on which side of the line
-from the limb's root to its end the middle joint bends (``_residual.pole_rows``; the
+effector below it (the hand, the ankle: ``m``'s child or grandchild), and the pole point
+says on which side of the line from the limb's root to its end the middle joint bends (``_residual.pole_rows``; the
 classic rig control, as :func:`jaxsim.ik.two_bone`).
 """
 
@@ -26,7 +26,8 @@ def check_poles(skeleton: Skeleton, poles, effectors: tuple, batch: tuple):
 
     Raises:
       ValueError: ``poles`` not a mapping of joints to points; a joint that is not the middle
-        of a limb (the root, or one without exactly one effector below it); a joint given
+        of a limb (the root, one without exactly one effector below it, or one whose
+        effector is more than two joints below); a joint given
         twice; a point not of shape ``(..., 3)`` or not broadcastable to the batch; a NaN or
         infinite point (outside ``jit``); a point on the limb's root at rest.
     """
@@ -50,6 +51,10 @@ def check_poles(skeleton: Skeleton, poles, effectors: tuple, batch: tuple):
         if len(below) != 1:
             raise ValueError(f"pole on joint {key!r}: a pole's joint is the middle of a limb with one effector below "
                              f"it, and {len(below)} of the effectors {effectors} are below it")
+        steps = _steps_below(parents, below[0], m)
+        if steps > 2:
+            raise ValueError(f"pole on joint {key!r}: not the middle of a two-bone limb (its effector, joint {below[0]}, "
+                             f"is {steps} joints below it; a limb's end is the middle joint's child or grandchild)")
         if any(t[1] == m for t in limbs):
             raise ValueError(f"pole on joint {key!r} given twice")
         p = jnp.asarray(point, dtype)
@@ -73,6 +78,14 @@ def check_poles(skeleton: Skeleton, poles, effectors: tuple, batch: tuple):
         limbs.append((parents[m], m, below[0]))
         points.append(jnp.broadcast_to(p, tuple(batch) + (3,)))
     return tuple(limbs), jnp.stack(points, axis=-2)
+
+
+def _steps_below(parents, x, j) -> int:
+    """How many joints down from ``j`` its descendant ``x`` is."""
+    n = 0
+    while x != j:
+        x, n = parents[x], n + 1
+    return n
 
 
 def _is_below(parents, x, j) -> bool:
