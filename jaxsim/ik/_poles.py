@@ -3,8 +3,8 @@
 ``solve(..., poles={joint: point})`` names a limb by its middle joint ``m`` (an elbow, a
 knee): the limb runs from ``m``'s parent (the shoulder, the hip) through ``m`` to the one
 effector below it (the hand, the ankle: ``m``'s child or grandchild), and the pole point
-says on which side of the line from the limb's root to its end the middle joint bends (``_residual.pole_rows``; the
-classic rig control, as :func:`jaxsim.ik.two_bone`).
+says on which side of the line from the limb's root to its end the middle joint bends
+(``_residual.pole_rows``; the classic rig control, as :func:`jaxsim.ik.two_bone`).
 """
 
 from __future__ import annotations
