@@ -38,14 +38,7 @@ import numpy as np
 
 from .._geometry import quat as _quat
 from ._projection import _twist, _twist_angle, hinge_angle
-from ._residual import Dofs, LMProblem, _perturb, _residual
-
-
-def _joint_turned(L, v):
-    """``L (4,)`` turned on the right by the rotation vector ``v (3,)``, as ``_residual._perturb``."""
-    dq = jnp.concatenate([jnp.ones((1,), v.dtype), 0.5 * v])
-    dq = dq / jnp.sqrt(jnp.sum(dq * dq))
-    return _quat.stack(_quat.mul(_quat.unstack(L), _quat.unstack(dq)))
+from ._residual import Dofs, LMProblem, _perturb, _residual, turned
 
 
 def _swing_twist(q, a):
@@ -59,7 +52,7 @@ def _swing_twist(q, a):
 
 def _swing_twist_turned(v, L, a):
     """``(2,)`` swing and twist angles of ``L (4,)`` turned on the right by ``v (3,)``, about ``a (3,)``."""
-    return jnp.stack(_swing_twist(_joint_turned(L, v), a))
+    return jnp.stack(_swing_twist(turned(L, v), a))
 
 
 def active_bounds(L, dofs: Dofs, table, dtype):
@@ -142,16 +135,15 @@ def _implicit_rotations_jvp(topo, dofs, primals, tangents):
         return q, jnp.zeros_like(q)
     d0 = jnp.zeros((n,), dtype)
     rtol = jnp.sqrt(jnp.finfo(dtype).eps)
+    # the targets, orientations and poles move (the weights are not differentiated)
+    prob_dot = dataclasses.replace(prob_dot, weights=jnp.zeros_like(prob.weights), orient_weights=(
+        None if prob.orient_weights is None else jnp.zeros_like(prob.orient_weights)))
+    g, rhs = jax.jvp(lambda o, p: _objective_grad(topo, dofs, table, d0, q, o, p), (offsets, prob),
+                     (off_dot, prob_dot))
     H = _hessian(topo, dofs, table, q, offsets, prob, gauss_newton)
     A, C = active_bounds(q, dofs, table, dtype)
     Pi = _tangent_projector(A, n, dtype)
     if A.shape[0]:  # the Lagrangian's Hessian: grad f = A^T mu on the held bounds
-        mu = jnp.linalg.pinv(A.T, rtol=rtol) @ _objective_grad(topo, dofs, table, d0, q, offsets, prob)
-        H = H - jnp.einsum("k,kij->ij", mu, C)
-    # the targets, orientations and poles move (the weights are not differentiated)
-    prob_dot = dataclasses.replace(prob_dot, weights=jnp.zeros_like(prob.weights), orient_weights=(
-        None if prob.orient_weights is None else jnp.zeros_like(prob.orient_weights)))
-    rhs = jax.jvp(lambda o, p: _objective_grad(topo, dofs, table, d0, q, o, p), (offsets, prob),
-                  (off_dot, prob_dot))[1]
+        H = H - jnp.einsum("k,kij->ij", jnp.linalg.pinv(A.T, rtol=rtol) @ g, C)
     dd = -(jnp.linalg.pinv(Pi @ H @ Pi, rtol=rtol, hermitian=True) @ (Pi @ rhs))
     return q, jax.jvp(lambda d: _perturb(q, d, dofs, table), (d0,), (dd,))[1]

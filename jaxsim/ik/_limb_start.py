@@ -27,6 +27,7 @@ import numpy as np
 
 from .._geometry import quat as _quat
 from ._projection import about, clamp_range, hinge_angle, safe_atan2
+from ._skeleton import steps_below
 from ._stacked import apply_bounds, bounds, take
 
 
@@ -43,14 +44,8 @@ def limbs(parents: tuple, effectors: tuple, kinds: tuple) -> tuple:
             continue
         found.append((k, parents[i], i, e))
 
-    def below(j, b):
-        while j >= 0:
-            if j == b:
-                return True
-            j = parents[j]
-        return False
-
-    return tuple(a for a in found if not any(o is not a and below(o[1], a[1]) for o in found))
+    return tuple(a for a in found if not any(o is not a and steps_below(parents, o[1], a[1]) is not None
+                                             for o in found))
 
 
 def limb_start(topo, table, L, P, G, targets, swivel=None, prob=None):
@@ -98,7 +93,7 @@ def limb_start(topo, table, L, P, G, targets, swivel=None, prob=None):
     line = _quat.rotate(to_parent, w)
     turn = _quat.from_two_vectors(reach, line)
     ell = _quat.normalize(line, _quat.perpendicular(line))
-    poled = {t[1]: k for k, t in enumerate(getattr(prob, "pole_limbs", ()))} if getattr(prob, "poles", None) is not None else {}
+    poled = {} if prob is None or prob.poles is None else {t[1]: k for k, t in enumerate(prob.pole_limbs)}
     has = [h in poled for h in hinge]
     if any(has):  # the turn about the line that brings the hinge to its pole's side
         pole = q(take(prob.poles, tuple(poled.get(h, 0) for h in hinge), axis=0), axis=-1)

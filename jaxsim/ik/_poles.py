@@ -17,7 +17,7 @@ import numpy as np
 from .._dataclass import is_concrete
 from .._validate import check_finite
 from ._fk import fk
-from ._skeleton import Skeleton, check_effectors
+from ._skeleton import Skeleton, check_effectors, steps_below
 
 
 def check_poles(skeleton: Skeleton, poles, effectors: tuple, batch: tuple):
@@ -47,11 +47,11 @@ def check_poles(skeleton: Skeleton, poles, effectors: tuple, batch: tuple):
             raise ValueError(f"pole joint {key!r}: {err}") from None
         if parents[m] < 0:
             raise ValueError(f"pole on joint {key!r}: the root is no limb's middle joint")
-        below = [e for e in effectors if e != m and _is_below(parents, e, m)]
+        below = [e for e in effectors if (steps_below(parents, e, m) or 0) > 0]
         if len(below) != 1:
             raise ValueError(f"pole on joint {key!r}: a pole's joint is the middle of a limb with one effector below "
                              f"it, and {len(below)} of the effectors {effectors} are below it")
-        steps = _steps_below(parents, below[0], m)
+        steps = steps_below(parents, below[0], m)
         if steps > 2:
             raise ValueError(f"pole on joint {key!r}: not the middle of a two-bone limb (its effector, joint {below[0]}, "
                              f"is {steps} joints below it; a limb's end is the middle joint's child or grandchild)")
@@ -79,20 +79,3 @@ def check_poles(skeleton: Skeleton, poles, effectors: tuple, batch: tuple):
         points.append(jnp.broadcast_to(p, tuple(batch) + (3,)))
     return tuple(limbs), jnp.stack(points, axis=-2)
 
-
-def _steps_below(parents, x, j) -> int:
-    """How many joints down from ``j`` its descendant ``x`` is."""
-    n = 0
-    while x != j:
-        x, n = parents[x], n + 1
-    return n
-
-
-def _is_below(parents, x, j) -> bool:
-    """Whether ``x`` hangs below ``j`` (``j`` a strict ancestor of ``x``)."""
-    x = parents[x]
-    while x >= 0:
-        if x == j:
-            return True
-        x = parents[x]
-    return False

@@ -17,6 +17,7 @@ import numpy as np
 from .._dataclass import pytree_dataclass, static_field
 from .._geometry import quat as _quat
 from ._pose import moving_joints
+from ._skeleton import steps_below
 from ._stacked import fk_stacked, frame_axes, sq_errors, take
 
 
@@ -97,11 +98,16 @@ def _perturb(L, d, dofs: Dofs, table):
     v = d[np.asarray(dofs.cols)]
     if any(dofs.hinge):
         v = jnp.where(np.asarray(dofs.hinge)[:, None], v * take(table.axis, dofs.joints, axis=0), v)
-    dq = jnp.concatenate([jnp.ones(v.shape[:-1] + (1,), d.dtype), 0.5 * v], axis=-1)
-    dq = dq / jnp.sqrt(jnp.sum(dq * dq, axis=-1, keepdims=True))
     ids = np.asarray(dofs.joints)
-    new = _quat.stack(_quat.mul(_quat.unstack(L[ids], axis=-1), _quat.unstack(dq, axis=-1)), axis=-1)
-    return L.at[ids].set(new)
+    return L.at[ids].set(turned(L[ids], v))
+
+
+def turned(L, v):
+    """Rotations ``L (..., 4)`` turned on the right by rotation vectors ``v (..., 3)``:
+    ``L (1, v / 2) / |.|`` (radians to first order)."""
+    dq = jnp.concatenate([jnp.ones(v.shape[:-1] + (1,), v.dtype), 0.5 * v], axis=-1)
+    dq = dq / jnp.sqrt(jnp.sum(dq * dq, axis=-1, keepdims=True))
+    return _quat.stack(_quat.mul(_quat.unstack(L, axis=-1), _quat.unstack(dq, axis=-1)), axis=-1)
 
 
 def _orient_scale(prob: LMProblem):
@@ -190,10 +196,11 @@ def jacobian_at(topo, P, G, prob: LMProblem, dofs: Dofs, table):
     if prob.poles is not None:  # the chain rule through the limb's three points' columns
         K, parents = len(prob.pole_limbs), topo.parents
         pts = tuple(j for t in prob.pole_limbs for j in t)  # (3K,) root, middle, end per pole
-        moves = np.asarray([[_above(parents, c, x) for c in cj] for x in pts], dtype)  # (3K, n)
-        lever = take(P, pts, axis=0)[:, None, :] - take(P, cj, axis=0)[None]  # (3K, n, 3)
+        moves = np.asarray([[steps_below(parents, x, c) is not None for c in cj] for x in pts], dtype)  # (3K, n)
+        Px = take(P, pts, axis=0)  # (3K, 3)
+        lever = Px[:, None, :] - take(P, cj, axis=0)[None]  # (3K, n, 3)
         Jx = _quat.stack(_quat.cross(om, _quat.unstack(lever, axis=-1)), axis=1) * moves[:, None, :]  # (3K, 3, n)
-        a, m, e = (take(P, tuple(t[c] for t in prob.pole_limbs), axis=0) for c in range(3))
+        a, m, e = (Px.reshape(K, 3, 3)[:, c] for c in range(3))
 
         def one(a, m, e, p):
             return _quat.stack(pole_rows(_quat.unstack(a), _quat.unstack(m), _quat.unstack(e), _quat.unstack(p)))
@@ -202,12 +209,3 @@ def jacobian_at(topo, P, G, prob: LMProblem, dofs: Dofs, table):
         Jx = Jx.reshape(K, 3, 3, dofs.n)  # (pole, point, component, n)
         rows.append(sum(jnp.einsum("kij,kjn->kin", D[c], Jx[:, c]) for c in range(3)).reshape(-1, dofs.n))
     return jnp.concatenate(rows, axis=0), r
-
-
-def _above(parents, j, x) -> bool:
-    """Whether joint ``j`` is ``x`` or one of its ancestors (turning ``j`` moves what hangs below it)."""
-    while x >= 0:
-        if x == j:
-            return True
-        x = parents[x]
-    return False

@@ -172,6 +172,17 @@ def chain_parents(J: int) -> tuple:
     return (-1,) + tuple(range(J - 1))
 
 
+def steps_below(parents: tuple, x: int, j: int) -> int | None:
+    """How many joints down from ``j`` the joint ``x`` hangs (0 when ``x`` is ``j``), or
+    ``None`` when ``j`` is neither ``x`` nor one of its ancestors."""
+    n = 0
+    while x >= 0:
+        if x == j:
+            return n
+        x, n = parents[x], n + 1
+    return None
+
+
 @functools.lru_cache(maxsize=None)
 def children_of(parents: tuple) -> tuple:
     kids = [[] for _ in parents]

@@ -86,7 +86,7 @@ def solve_ik(settings, model, targets, *, rotations=None, effectors=None, weight
     res = _run(settings, model, inp, topo, table, lean, trace=bool(trace), unroll=unroll,
                early_exit=bool(early_exit), stop=bool(implicit_diff), limbs=own_start, poles=(pole_limbs, pole_points))
     if implicit_diff:
-        res = _implicit(model, inp, topo, table, res, settings.tol, (pole_limbs, pole_points))
+        res = _implicit(model, inp, topo, table, res, (pole_limbs, pole_points))
     return res
 
 
@@ -136,18 +136,15 @@ def _run(settings, model, inp: Inputs, topo, table, lean, *, trace, unroll, earl
     return _batch_last(res, batch)
 
 
-def _implicit(model, inp: Inputs, topo, table, res: IKResult, tol, poles=((), None)) -> IKResult:
+def _implicit(model, inp: Inputs, topo, table, res: IKResult, poles=((), None)) -> IKResult:
     """The solution with implicit-function derivatives (``_implicit``; active limits held),
     its FK and errors."""
     orient = inp.orientations is not None
     dofs = _dofs(topo, table, orient)
     batch = inp.batch
     tg = jnp.broadcast_to(inp.targets, batch + inp.targets.shape[-2:])
-    met = jnp.all(res.reachable & (res.error <= tol), axis=-1)
-    orients = None
-    if orient:
-        orients = jnp.broadcast_to(inp.orientations, batch + inp.orientations.shape[-2:])
-        met = met & jnp.all(inp.orientation_weights * res.angle_error <= tol, axis=-1)
+    met = res.converged & jnp.all(res.reachable, axis=-1)  # every target (orientation, pole) within tol
+    orients = None if not orient else jnp.broadcast_to(inp.orientations, batch + inp.orientations.shape[-2:])
 
     pole_limbs, pole_points = poles
 
