@@ -46,9 +46,16 @@ def stack_scenes(scenes: Sequence[Cloth]) -> Cloth:
                              "order and friction on/off (their values may differ)")
         if (s.contact_stiffness is None) != (first.contact_stiffness is None):
             raise ValueError("scenes differ in whether contact_stiffness is set; set it on all or none")
+        if (s.self_contact, s.self_contact_pairs, np.shape(s.contact_faces)) != (
+                first.self_contact, first.self_contact_pairs, np.shape(first.contact_faces)):
+            raise ValueError(f"scenes[{k}] differs from scenes[0] in self_contact, self_contact_pairs or the number "
+                             "of contact faces; batched scenes need the same")
     leaves = {f: jnp.stack([getattr(s, f) for s in scenes]) for f in _LEAVES if f != "springs"}
     leaves["springs"] = frozen_ids(np.stack([s.springs for s in scenes]))  # a topology: concrete under jit too
     leaves.update(_stack_contact(scenes))
+    if first.contact_faces is not None:  # topologies, as the springs
+        for f in _SELF:
+            leaves[f] = frozen_ids(np.stack([getattr(s, f) for s in scenes]))
     return dataclasses.replace(first, **leaves)  # a batch: not checked again per scene (Cloth)
 
 
@@ -66,6 +73,8 @@ def _stack_contact(scenes) -> dict:
 _LEAVES = ("rest", "springs", "rest_length", "stiffness", "mass", "pinned", "gravity", "damping")
 #: The leaves that contact adds (a pytree of colliders, the gap, the barrier stiffness or ``None``).
 _CONTACT = ("colliders", "contact_gap", "contact_stiffness")
+#: The leaves that self-contact adds (``None`` without it).
+_SELF = ("contact_faces", "contact_edges")
 
 
 @functools.partial(jax.jit, static_argnames=("n_steps", "integrator", "checkpoint", "state_batched", "layout_batched"))
@@ -189,7 +198,8 @@ def batch_rollout(scenes, state: State, dt, n_steps: int, integrator=ImplicitEul
     mesh = _sharding.batch_mesh(sharded, B)
     pad = 0
     if mesh is not None:
-        leaves, pad = _sharding.shard_leading({f: getattr(scenes, f) for f in _LEAVES + _CONTACT}, mesh, B)
+        names = _LEAVES + _CONTACT + (_SELF if scenes.contact_faces is not None else ())
+        leaves, pad = _sharding.shard_leading({f: getattr(scenes, f) for f in names}, mesh, B)
         scenes = dataclasses.replace(scenes, **leaves)
         if layout_batched:
             layout, _ = _sharding.shard_leading(layout, mesh, B)

@@ -13,9 +13,10 @@ from .._dataclass import is_concrete
 from .._validate import check_finite, check_real, check_shape
 from ._implicit.resume import Resume
 from ._info import StepInfo
-from ._integrators import ExplicitEuler, ImplicitEuler
+from ._integrators import BDF2, ExplicitEuler, ImplicitEuler
 from ._model.colliders import COLLIDERS, collider_kinds, count_inside, describe_inside
 from ._model.scene import Cloth, State
+from ._self.intersect import first_intersection
 
 
 def valid_inputs(cloth: Cloth, dt):
@@ -46,7 +47,16 @@ def check_inputs(cloth: Cloth, state: State, dt, integrator) -> State:
         raise ValueError("this scene is batched (from stack_scenes): use batch_rollout")
     if cloth.colliders and isinstance(integrator, ExplicitEuler):
         raise ValueError("colliders need ImplicitEuler: contact is a barrier in its incremental potential")
+    if cloth.self_contact and isinstance(integrator, ExplicitEuler):
+        raise ValueError("self_contact needs ImplicitEuler: self-contact is a barrier in its incremental potential")
+    if cloth.self_contact and isinstance(integrator, BDF2):
+        raise ValueError("self_contact is not supported with BDF2 yet (its shifted base may cross a surface); "
+                         "use ImplicitEuler")
     out = [particle_array(name, a, cloth) for name, a in (("state.x", state.x), ("state.v", state.v))]
+    if cloth.self_contact and is_concrete(state.x):
+        hit = first_intersection(np.asarray(out[0], np.float64), cloth.contact_faces, cloth.contact_edges)
+        if hit is not None:
+            raise ValueError(f"the state intersects itself: {hit}")
     if cloth.colliders and is_concrete(state.x) and is_concrete(*jax.tree_util.tree_leaves(cloth.colliders)):
         inside = count_inside(cloth.colliders, out[0], ~np.asarray(cloth.pinned))
         if inside:

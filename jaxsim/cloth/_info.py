@@ -49,6 +49,9 @@ class StepInfo:
         the substeps, ``step_size``, ``residual`` and ``trace`` are the last attempt's.
       trace: ``NewtonTrace`` of the step's Newton iterations with
         ``ImplicitEuler(trace=True)``, else ``None``.
+      pair_overflow: with ``Cloth.self_contact``: a motion had more self-contact pairs
+        than ``Cloth.self_contact_pairs`` slots (an iteration that met it was not taken,
+        so the step is retried in substeps or not converged); ``None`` without self-contact.
     """
 
     newton_iters: jax.Array
@@ -64,3 +67,4 @@ class StepInfo:
     cond_bound: jax.Array
     substeps: jax.Array
     trace: NewtonTrace | None = None
+    pair_overflow: jax.Array | None = None

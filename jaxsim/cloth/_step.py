@@ -94,7 +94,8 @@ def step(cloth: Cloth, state: State, dt, integrator=ImplicitEuler(), guess=None,
 
 @functools.partial(jax.jit, static_argnames=("n_steps", "integrator", "checkpoint"))
 def _rollout(cloth, layout, state, dt, n_steps, integrator, checkpoint=False, path=None, resume=None):
-    extrapolate = isinstance(integrator, ImplicitEuler) and integrator.extrapolate and not cloth.colliders
+    extrapolate = (isinstance(integrator, ImplicitEuler) and integrator.extrapolate and not cloth.colliders
+                   and not cloth.self_contact)
 
     def f(carry, cols):
         s, prev, history, before = carry  # history: None unless extrapolating; before: BDF2's

@@ -14,6 +14,7 @@ from ..._dataclass import pytree_dataclass
 from .._model import energy as en
 from .linsolve import dense_solve, lu_solve, pcg
 from .setup import NewtonSetup
+from .._self.terms import PairBlocks, blocks as pair_blocks
 
 #: ``project_psd="auto"``: when the exact Hessian is not positive definite, the direction is
 #: first retried on the exact Hessian plus this many times the inertia term ``M / h^2``
@@ -53,12 +54,14 @@ class HessianParts:
         planes for PCG on a grid: ``hessian``).
       contact: the PSD contact blocks in PCG's layout (``(N, 3, 3)`` dense), or ``None``.
       precond: the SPD preconditioner ``r -> z`` (``None`` for Cholesky).
+      pairs: the self-contact pairs' PSD blocks (``_self.terms.PairBlocks``), or ``None``.
     """
 
     exact: jax.Array
     psd: jax.Array
     contact: jax.Array | None
     precond: Callable | None
+    pairs: PairBlocks | None = None
 
 
 def _safe_ratio(num, den):
@@ -66,15 +69,19 @@ def _safe_ratio(num, den):
     return jnp.where(jnp.isfinite(r), r, jnp.inf)
 
 
-def hessian_parts(sv: NewtonSetup, w, terms) -> HessianParts:
-    """:class:`HessianParts` at ``w`` from its spring ``terms``."""
+def hessian_parts(sv: NewtonSetup, w, terms, pairs=None) -> HessianParts:
+    """:class:`HessianParts` at ``w`` from its spring ``terms`` (and self-contact ``pairs``)."""
     ops = sv.ops
     A_exact = ops.blocks(w, terms, project_psd=False)
     A_psd = ops.blocks(w, terms, project_psd=True)
     C, C_cg = ops.contact(w)
+    P = None
+    if sv.p.selfc is not None:
+        p = sv.at(pairs)
+        P = pair_blocks(p.selfc, p.positions(w), sv.free)
     if sv.dense:
-        return HessianParts(A_exact, A_psd, C, None)
-    return HessianParts(A_exact, A_psd, C_cg, ops.preconditioner(A_psd, C, C_cg))
+        return HessianParts(A_exact, A_psd, C, None, P)
+    return HessianParts(A_exact, A_psd, C_cg, ops.preconditioner(A_psd, C, C_cg, P), P)
 
 
 def dense(sv: NewtonSetup, b, H, indefinite=False) -> Direction:
@@ -87,13 +94,16 @@ def dense(sv: NewtonSetup, b, H, indefinite=False) -> Direction:
     return Direction(dx.reshape(sv.N, 3), jnp.int32(0), res, ~jnp.all(jnp.isfinite(dx)), jnp.int32(0))
 
 
-def assembled(sv: NewtonSetup, A, C, inertia=1.0):
-    """The dense Hessian ``(3N, 3N)``: spring blocks ``A``, ``inertia M/h^2`` and contact ``C``."""
+def assembled(sv: NewtonSetup, A, C, inertia=1.0, pairs: PairBlocks | None = None):
+    """The dense Hessian ``(3N, 3N)``: spring blocks ``A``, ``inertia M/h^2``, contact ``C``
+    and the self-contact ``pairs``."""
     c, h, N = sv.p.cloth, sv.p.h, sv.N
     H = en.assemble(c, A) + jnp.diag(inertia * jnp.repeat(c.mass, 3) / h**2)
     if C is not None:
         eye = jnp.eye(N, dtype=C.dtype)
         H = H + (eye[:, None, :, None] * C[:, :, None, :]).reshape(3 * N, 3 * N)
+    if pairs is not None:
+        H = H + pairs.dense(N)
     return H
 
 
@@ -147,9 +157,10 @@ def auto_cg(sv: NewtonSetup, b, parts: HessianParts, guess, tol, stationary=Fals
     of exact, shifted and clamped."""
     def solve(k):
         A, inertia = _auto_hessian(parts, k, sv.dtype)
-        return cg(sv, b, sv.ops.hvp(A, parts.contact, inertia), guess, parts.precond, tol)
+        return cg(sv, b, sv.ops.hvp(A, parts.contact, inertia, parts.pairs), guess, parts.precond, tol)
 
-    first = cg(sv, b, sv.ops.hvp(parts.exact, parts.contact), guess, parts.precond, tol, indefinite=stationary)
+    first = cg(sv, b, sv.ops.hvp(parts.exact, parts.contact, pairs=parts.pairs), guess, parts.precond, tol,
+               indefinite=stationary)
     first = dataclasses.replace(first, indefinite=first.indefinite & ~stationary,
                                 hessian=jnp.where(stationary, STATIONARY, EXACT).astype(jnp.int32))
     return _retries(first, solve)
@@ -159,15 +170,15 @@ def auto_dense(sv: NewtonSetup, b, parts: HessianParts) -> Direction:
     """``project_psd="auto"`` by Cholesky: the first definite of exact, shifted and clamped."""
     def solve(k):
         A, inertia = _auto_hessian(parts, k, sv.dtype)
-        return dense(sv, b, assembled(sv, A, parts.contact, inertia))
+        return dense(sv, b, assembled(sv, A, parts.contact, inertia, parts.pairs))
 
-    return _retries(dense(sv, b, assembled(sv, parts.exact, parts.contact)), solve)
+    return _retries(dense(sv, b, assembled(sv, parts.exact, parts.contact, pairs=parts.pairs)), solve)
 
 
 def stationary(sv: NewtonSetup, b, parts: HessianParts) -> Direction:
     """The exact Hessian solved densely through negative curvature (LU; ``hessian`` 3: a
     stationary point).  PCG takes this solve in :func:`auto_cg`."""
-    d = dense(sv, b, assembled(sv, parts.exact, parts.contact), indefinite=True)
+    d = dense(sv, b, assembled(sv, parts.exact, parts.contact, pairs=parts.pairs), indefinite=True)
     return dataclasses.replace(d, indefinite=None, hessian=jnp.int32(STATIONARY))
 
 
@@ -180,10 +191,10 @@ def minimising(sv: NewtonSetup, w, b, parts: HessianParts, guess, tol) -> Direct
     A_psd, C, Minv = parts.psd, parts.contact, parts.precond
     if sv.dense:
         if projection is True:
-            return _chosen(dense(sv, b, assembled(sv, A_psd, C)))
+            return _chosen(dense(sv, b, assembled(sv, A_psd, C, pairs=parts.pairs)))
         return auto_dense(sv, b, parts)
     if projection is True:
-        return _chosen(cg(sv, b, ops.hvp(A_psd, C), guess, Minv, tol))
+        return _chosen(cg(sv, b, ops.hvp(A_psd, C, pairs=parts.pairs), guess, Minv, tol))
     if projection is False:  # the exact Hessian, through the autodiff Hessian-vector product
         hvp = lambda v: ops.to_cg(jax.jvp(sv.grad, (w,), (ops.from_cg(v),))[1])  # noqa: E731
         return _chosen(cg(sv, b, hvp, guess, Minv, tol))

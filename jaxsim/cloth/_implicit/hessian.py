@@ -117,22 +117,31 @@ class HessianOps:
         C = ct.blocks(p.displacement(w), p.x0, p.cloth, p.contact, p.free)
         return C, self.per_particle(C)
 
-    def hvp(self, A, C_cg, inertia=1.0):
-        """``v -> (inertia M/h^2 + sum_s A_s + C) v`` (unrestricted)."""
+    def hvp(self, A, C_cg, inertia=1.0, pairs=None):
+        """``v -> (inertia M/h^2 + sum_s A_s + C + sum_pairs B) v`` (unrestricted); ``pairs``:
+        the self-contact blocks (``_self.terms.PairBlocks``), applied in ``(N, 3)``."""
         h = self.p.h
 
         def apply(v):
             out = self.springs(A, v) + inertia * self.m / h**2 * v
+            if pairs is not None:
+                out = out + self.to_cg(pairs.matvec(self.from_cg(v)))
             return out if C_cg is None else out + self.matvec(C_cg, v)
 
         return apply
 
-    def preconditioner(self, A_psd, C, C_cg):
-        """Block Jacobi, or the two-level cycle of ``_implicit.coarse`` around it (SPD)."""
-        jacobi, D = self.jacobi(A_psd, C, C_cg)
+    def preconditioner(self, A_psd, C, C_cg, pairs=None):
+        """Block Jacobi, or the two-level cycle of ``_implicit.coarse`` around it (SPD); the
+        self-contact ``pairs`` add their diagonal blocks to the per-particle ones."""
+        Cd, Cd_cg = C, C_cg
+        if pairs is not None:
+            D = pairs.diagonal(self.p.cloth.num_particles)
+            Cd = D if C is None else C + D
+            Cd_cg = self.per_particle(Cd)
+        jacobi, D = self.jacobi(A_psd, Cd, Cd_cg)
         if not self.two_level:
             return jacobi
-        return two_level(self.coarse(A_psd, C, D), jacobi, self.restricted(self.hvp(A_psd, C_cg)))
+        return two_level(self.coarse(A_psd, Cd, D), jacobi, self.restricted(self.hvp(A_psd, C_cg, pairs=pairs)))
 
 
 class ParticleOps(HessianOps):

@@ -8,10 +8,13 @@ from jax import lax
 
 from ..._dataclass import pytree_dataclass
 from . import contact as ct
+from .._self import terms as sc
 from .setup import Evaluation, NewtonSetup
 
 #: Armijo constants of the backtracking line search (lab Algorithm 2).
 BETA, GAMMA = 0.5, 1e-4
+#: Halvings of a step whose motion has more self-contact pairs than slots.
+SHORTER = 10
 
 
 @pytree_dataclass
@@ -33,11 +36,26 @@ class Trial:
 
 
 def first_step(sv: NewtonSetup, w, dx):
-    """1, or the largest step that crosses no collider's surface (IPC's CCD line search)."""
+    """``(alpha, pairs)``: 1, or the largest step that crosses no collider's surface and no
+    self-contact pair (IPC's CCD line search; additive CCD for the pairs), and the
+    self-contact pairs on the motion to it (``None`` without self-contact)."""
     p = sv.p
-    if p.contact is None:
-        return jnp.ones((), sv.dtype)
-    return ct.step_bound(p.displacement(w), dx, p.x0, p.cloth, sv.free)
+    a = jnp.ones((), sv.dtype)
+    if p.contact is not None:
+        a = ct.step_bound(p.displacement(w), dx, p.x0, p.cloth, sv.free)
+    if p.selfc is None:
+        return a, None
+    x = p.positions(w)
+    # a long step's boxes can hold more pairs than there are slots: halve it until they fit
+    # (at most SHORTER times; a set that still overflows says so and the step is not taken)
+    def shorter(c):
+        a, _, k = c
+        a = jnp.where(k > 0, 0.5 * a, a)
+        return a, sc.pairs(p.selfc, x, a * dx), k + 1
+
+    a, seg, _ = lax.while_loop(lambda c: c[1].overflow & (c[2] <= SHORTER), shorter,
+                               (a, sc.empty_pairs(p.selfc, x.dtype), jnp.int32(0)))
+    return sc.step_bound(p.selfc, seg, x, dx, a), seg
 
 
 def line_search(sv: NewtonSetup, w, gw, gvec, dx, full=False) -> Trial:
@@ -52,8 +70,8 @@ def line_search(sv: NewtonSetup, w, gw, gvec, dx, full=False) -> Trial:
     integ, h = sv.integ, sv.p.h
     dx = dx * sv.free
     if not integ.line_search:
-        a = first_step(sv, w, dx)
-        return Trial(dx, a, jnp.int32(0), sv.evaluate(w + a * dx))
+        a, seg = first_step(sv, w, dx)
+        return Trial(dx, a, jnp.int32(0), sv.evaluate(w + a * dx, seg))
     # keep every step a descent step
     slope = jnp.sum(gvec * dx)
     descent = (slope < 0) | full
@@ -65,11 +83,12 @@ def line_search(sv: NewtonSetup, w, gw, gvec, dx, full=False) -> Trial:
         armijo = at.g <= gw + GAMMA * a * slope + slack
         return (armijo & jnp.isfinite(at.g)) | full | (k >= integ.max_backtracks)
 
+    a0, seg = first_step(sv, w, dx)
+
     def body(s):
         a, k, _ = s
         a, k = BETA * a, k + 1
-        return a, k, sv.evaluate(w + a * dx)
+        return a, k, sv.evaluate(w + a * dx, seg)
 
-    a0 = first_step(sv, w, dx)
-    a, k, at = lax.while_loop(lambda s: ~accepted(*s), body, (a0, jnp.int32(0), sv.evaluate(w + a0 * dx)))
+    a, k, at = lax.while_loop(lambda s: ~accepted(*s), body, (a0, jnp.int32(0), sv.evaluate(w + a0 * dx, seg)))
     return Trial(dx, a, k, at)

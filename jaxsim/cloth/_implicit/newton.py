@@ -74,7 +74,7 @@ def search_direction(sv: NewtonSetup, s: NewtonState, tol):
     Newton close to a stationary point (or in a phase) the stationary-point solve
     (``tried``: ``()`` bool, the latter was taken)."""
     cur = s.iterate
-    parts = dr.hessian_parts(sv, cur.w, cur.terms)
+    parts = dr.hessian_parts(sv, cur.w, cur.terms, cur.pairs)
     if sv.integ.project_psd != "auto":
         return dr.minimising(sv, cur.w, -cur.grad, parts, s.guess, tol), jnp.array(False)
     tried = (s.phase > 0) | (s.indefinite & (cur.rel < s.stationary_below))
@@ -143,12 +143,16 @@ def iteration(sv: NewtonSetup, s: NewtonState, rtol) -> NewtonState:
     t = line_search(sv, cur.w, cur.g, cur.grad, d.dx, full=tried)
     step = t.alpha * t.dx  # dx is 0 on pins
     w_new = cur.w + step
-    rel = pr.relative_gradient(t.at.grad, w_new, sv.p, t.at.terms)
+    rel = pr.relative_gradient(t.at.grad, w_new, sv.at(t.at.pairs), t.at.terms)
     ok = jnp.all(jnp.isfinite(w_new)) & jnp.isfinite(t.at.g) & jnp.all(jnp.isfinite(t.at.grad))
+    overflow = s.overflow
+    if overflow is not None:  # pairs were missed on this motion: it is not taken
+        ok = ok & ~t.at.pairs.overflow
+        overflow = overflow | t.at.pairs.overflow
     ph = phase_step(s, tried, rel, ok)
     taken = ok & ~ph.rejected
     done = stop_test(sv, cur, step, w_new, rel, rtol) & taken & (ph.count == 0) | ~ok
-    new = _where(taken, Iterate(w_new, t.at.g, t.at.grad, rel, t.at.terms), ph.old)
+    new = _where(taken, Iterate(w_new, t.at.g, t.at.grad, rel, t.at.terms, t.at.pairs), ph.old)
     trace = s.trace
     if trace is not None:  # a failed step or phase is not taken
         dmax = jnp.max(jnp.abs(step))
@@ -160,7 +164,7 @@ def iteration(sv: NewtonSetup, s: NewtonState, rtol) -> NewtonState:
                        cg=s.cg + d.cg, bt=s.bt + t.backtracks, alpha=t.alpha, res=d.res,
                        indefinite=jnp.where(ph.rejected, s.indefinite, d.hessian != 0),
                        stationary_below=ph.below, phase=ph.count, tight=s.tight, done=done, fail=s.fail | ~ok,
-                       anchor=ph.anchor, trace=trace)
+                       anchor=ph.anchor, trace=trace, overflow=overflow)
 
 
 def initial_state(sv: NewtonSetup, rtol, start=None, tight_first=False) -> NewtonState:
@@ -171,7 +175,7 @@ def initial_state(sv: NewtonSetup, rtol, start=None, tight_first=False) -> Newto
     h = p.h
     w0 = p.start
     tight = jnp.array(False)
-    if start is None or p.contact is not None:
+    if start is None or p.touches:
         cg0 = h * p.v0 * free  # the first direction is about the displacement h v^n
         e0 = sv.evaluate(w0)
     else:
@@ -182,15 +186,17 @@ def initial_state(sv: NewtonSetup, rtol, start=None, tight_first=False) -> Newto
         cg0 = jnp.where(better, 0.0, h * p.v0 * free)
         tight = better & tight_first
     z = jnp.zeros((), sv.dtype)
-    rel0 = pr.relative_gradient(e0.grad, w0, p, e0.terms)
-    at0 = Iterate(w0, e0.g, e0.grad, rel0, e0.terms)
+    over0 = jnp.array(False) if e0.pairs is None else e0.pairs.overflow  # pairs missed at the start
+    rel0 = pr.relative_gradient(e0.grad, w0, sv.at(e0.pairs), e0.terms)
+    at0 = Iterate(w0, e0.g, e0.grad, rel0, e0.terms, e0.pairs)
     return NewtonState(iterate=at0, guess=cg0,
                        it=jnp.int32(0), cg=jnp.int32(0), bt=jnp.int32(0), alpha=z, res=z,
                        indefinite=jnp.array(False), stationary_below=jnp.asarray(STATIONARY_REL, sv.dtype),
                        phase=jnp.int32(0), tight=tight,
-                       done=(rel0 <= rtol) if integ.tol is None else jnp.array(False), fail=jnp.array(False),
+                       done=((rel0 <= rtol) if integ.tol is None else jnp.array(False)) | over0, fail=over0,
                        anchor=at0 if integ.project_psd == "auto" else None,
-                       trace=NewtonTrace.empty(integ.newton_iters, sv.dtype) if integ.trace else None)
+                       trace=NewtonTrace.empty(integ.newton_iters, sv.dtype) if integ.trace else None,
+                       overflow=None if e0.pairs is None else e0.pairs.overflow)
 
 
 def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol, start=None, tight_first=False) -> NewtonState:

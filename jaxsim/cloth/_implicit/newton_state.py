@@ -7,6 +7,7 @@ import jax
 from ..._dataclass import pytree_dataclass
 from . import problem as pr
 from .trace import NewtonTrace
+from .._self.terms import PairSet
 
 
 @pytree_dataclass
@@ -21,6 +22,7 @@ class Iterate:
       rel: ``()`` relative gradient ``|grad|_inf / scale`` at ``w``.
       terms: the spring terms at ``w`` (``_implicit.problem.SpringTerms``), which gave ``g``,
         ``grad`` and ``rel`` and give the next iteration's Hessian blocks.
+      pairs: the self-contact pairs counted at ``w`` (``_self.terms.PairSet``), or ``None``.
     """
 
     w: jax.Array
@@ -28,6 +30,7 @@ class Iterate:
     grad: jax.Array
     rel: jax.Array
     terms: pr.SpringTerms
+    pairs: PairSet | None = None
 
 
 @pytree_dataclass
@@ -54,6 +57,8 @@ class NewtonState:
       done: ``()`` bool, the loop has stopped.
       fail: ``()`` bool, a step produced non-finite values (and was not taken).
       trace: the per-iteration log with ``ImplicitEuler(trace=True)``, else ``None``.
+      overflow: ``()`` bool, a self-contact pair set had more pairs than slots (that
+        iteration was not taken); ``None`` without self-contact.
     """
 
     iterate: Iterate
@@ -71,3 +76,4 @@ class NewtonState:
     fail: jax.Array
     anchor: Iterate | None = None
     trace: NewtonTrace | None = None
+    overflow: jax.Array | None = None

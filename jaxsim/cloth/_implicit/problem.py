@@ -33,6 +33,7 @@ from . import contact as ct
 from .._model import energy as en
 from .._layout import Layout, layout_of
 from .._model.scene import Cloth
+from .._self import terms as sc
 from .._vec import dot
 
 
@@ -59,6 +60,8 @@ class StepProblem:
       e0: ``(S, 3)`` frozen unit damping directions ``d0 / l0`` (``None`` when undamped).
       contact: the lagged contact terms (``_implicit.contact.ContactTerms``), ``None`` for a scene
         without colliders.
+      selfc: the self-contact data (``_self.terms.SelfContact``), ``None`` unless
+        ``Cloth.self_contact``.
     """
 
     cloth: Cloth
@@ -72,6 +75,7 @@ class StepProblem:
     dv: jax.Array
     e0: jax.Array | None
     contact: ct.ContactTerms | None = None
+    selfc: sc.SelfContact | None = None
 
     @staticmethod
     def build(cloth: Cloth, x0, v0, h, prev_colliders=None, layout: Layout | None = None,
@@ -97,8 +101,28 @@ class StepProblem:
         if cloth.colliders:
             at, step = (None, h) if start is None else start
             contact = ct.build(cloth, x0, step, free_mask(cloth, x0.dtype), prev_colliders, at)
+        selfc = None
+        if cloth.self_contact:
+            kappa = ct.default_stiffness(cloth, h) if cloth.contact_stiffness is None else cloth.contact_stiffness
+            selfc = sc.build(cloth, kappa)
         return StepProblem(cloth, layout, x0, v0, h, d0, l0, l0 - cloth.rest_length,
-                           h * layout.diff(cloth.springs, v0), e0, contact)
+                           h * layout.diff(cloth.springs, v0), e0, contact, selfc)
+
+    @property
+    def touches(self) -> bool:
+        """Contact terms of any kind (colliders or self-contact): Newton starts from ``x^n``
+        (or its push-out), never from an extrapolation that might cross a surface."""
+        return self.contact is not None or self.selfc is not None
+
+    def with_pairs(self, pairs):
+        """The problem with its self-contact pair set fixed to ``pairs`` (``_self.terms.PairSet``)."""
+        if self.selfc is None or pairs is None:
+            return self
+        return dataclasses.replace(self, selfc=dataclasses.replace(self.selfc, pairs=pairs))
+
+    def positions(self, w):
+        """``(N, 3)`` the positions ``x^n + u`` at the deviation ``w`` (m)."""
+        return self.x0 + self.displacement(w)
 
     @property
     def free(self) -> jax.Array:
@@ -185,6 +209,10 @@ def _contact_potential(w, p: StepProblem):
     return ct.potential(p.displacement(w), p.x0, p.cloth, p.contact, p.free)
 
 
+def _self_potential(w, p: StepProblem):
+    return sc.potential(p.selfc, p.positions(w), p.free)
+
+
 def objective(w, p: StepProblem, t: SpringTerms):
     """``g(w)`` (J) from the spring terms ``t`` at ``w``."""
     c = p.cloth
@@ -192,6 +220,8 @@ def objective(w, p: StepProblem, t: SpringTerms):
     g = g + jnp.sum(en.element_potential(t.s, c.stiffness, t.damp, p.d_over_h))
     if p.contact is not None:
         g = g + _contact_potential(w, p)
+    if p.selfc is not None:
+        g = g + _self_potential(w, p)
     return g
 
 
@@ -226,6 +256,8 @@ def gradient(w, p: StepProblem, t: SpringTerms):
     out = c.mass[:, None] / p.h**2 * w + p.sum(materialized(f))
     if p.contact is not None:
         out = out + jax.grad(_contact_potential)(w, p)
+    if p.selfc is not None:
+        out = out + jax.grad(_self_potential)(w, p)
     return out
 
 
@@ -247,6 +279,8 @@ def force_scale(w, p: StepProblem, t: SpringTerms | None = None):
     scale = inertia + m * en._length(c.gravity) + p.sum(materialized(f), signed=False)
     if p.contact is not None:
         scale = scale + ct.force_magnitudes(p.displacement(w), p.x0, c, p.contact, p.free)
+    if p.selfc is not None:
+        scale = scale + sc.force_magnitudes(p.selfc, p.positions(w), p.free)
     return scale
 
 

@@ -12,6 +12,7 @@ from .._integrators import ImplicitEuler
 from .._linear import Cholesky
 from . import problem as pr
 from .hessian import hessian_ops
+from .._self.terms import PairSet, pairs as find_pairs
 
 
 @pytree_dataclass
@@ -22,11 +23,14 @@ class Evaluation:
       g: ``()`` the objective ``g(w)`` (J).
       grad: ``(N, 3)`` ``grad g(w)`` on free particles, 0 on pinned ones (N).
       terms: the spring terms at ``w`` (``problem.SpringTerms``).
+      pairs: the self-contact pairs ``g`` counted (``_self.terms.PairSet``), ``None``
+        without self-contact.
     """
 
     g: jax.Array
     grad: jax.Array
     terms: pr.SpringTerms
+    pairs: PairSet | None = None
 
 
 class NewtonSetup:
@@ -59,7 +63,15 @@ class NewtonSetup:
         self.free3 = self.free.repeat(3, axis=1).reshape(-1)
         self.ops = hessian_ops(p, self.linear)  # PCG on planes on a grid scene (``_layout``)
 
-    def evaluate(self, w) -> Evaluation:
-        """:class:`Evaluation` at ``w (N, 3)``: one pass over the springs."""
-        t = pr.spring_terms(w, self.p)
-        return Evaluation(pr.objective(w, self.p, t), pr.gradient(w, self.p, t) * self.free, t)
+    def at(self, pairs) -> pr.StepProblem:
+        """The step problem with the self-contact pairs ``pairs`` (itself without self-contact)."""
+        return self.p.with_pairs(pairs)
+
+    def evaluate(self, w, pairs: PairSet | None = None) -> Evaluation:
+        """:class:`Evaluation` at ``w (N, 3)``: one pass over the springs.  With self-contact,
+        over ``pairs`` (a set found for a motion through ``w``), by default those at ``w``."""
+        if self.p.selfc is not None and pairs is None:
+            pairs = find_pairs(self.p.selfc, self.p.positions(w))
+        p = self.at(pairs)
+        t = pr.spring_terms(w, p)
+        return Evaluation(pr.objective(w, p, t), pr.gradient(w, p, t) * self.free, t, pairs)

@@ -40,7 +40,7 @@ def _whole(cloth: Cloth, state: State, dt, integ: ImplicitEuler, prev, start, ti
     p = bdf2.step_problem(cloth, x0, v0, h, prev, layout, before)
     rtol = integ.resolved_rtol(x0.dtype)
     p_const = jax.tree_util.tree_map(lax.stop_gradient, p)
-    if start is not None and p.contact is None:  # contact starts from x^n or its push-out
+    if start is not None and not p.touches:  # contact starts from x^n or its push-out
         start = lax.stop_gradient(start(p_const))
     else:
         start = None
@@ -53,7 +53,8 @@ def _whole(cloth: Cloth, state: State, dt, integ: ImplicitEuler, prev, start, ti
     info = StepInfo(newton_iters=s.it, cg_iters=s.cg, grad_norm=jnp.where(jnp.isfinite(gnorm), gnorm, jnp.inf),
                     rel_grad=end.rel, step_size=s.alpha, backtracks=s.bt, residual=s.res,
                     converged=ok & (end.rel <= rtol), stable=ok, valid=valid,
-                    cond_bound=pr.condition_bound(p_const, end.terms), substeps=ok.astype(jnp.int32), trace=s.trace)
+                    cond_bound=pr.condition_bound(p_const, end.terms), substeps=ok.astype(jnp.int32), trace=s.trace,
+                    pair_overflow=s.overflow)
     return State(x, v), info, None if before is None else before.after(x0, v0, h, ok)
 
 
@@ -76,7 +77,7 @@ def _substepped(cloth: Cloth, state: State, dt, integ: ImplicitEuler, prev, star
     info = StepInfo(newton_iters=t.newton_iters, cg_iters=t.cg_iters, grad_norm=t.grad_norm, rel_grad=t.rel_grad,
                     step_size=t.step_size, backtracks=t.backtracks, residual=t.residual,
                     converged=ok & t.converged, stable=ok, valid=valid, cond_bound=t.cond_bound,
-                    substeps=jnp.where(ok, found.count, 0), trace=t.trace)
+                    substeps=jnp.where(ok, found.count, 0), trace=t.trace, pair_overflow=t.overflow)
     if before is not None:
         last = before.after(last.x, last.v, last.h, ok)
     return State(jnp.where(ok, x, x0), jnp.where(ok, v, v0)), info, last

@@ -75,7 +75,8 @@ class Totals:
     ``newton_iters``, ``cg_iters`` and ``backtracks`` are summed over every attempt,
     including those retried as halves; ``rel_grad``, ``grad_norm`` and ``cond_bound`` are
     the largest over the accepted substeps; ``step_size``, ``residual`` and ``trace`` are the
-    last attempt's; ``converged``: every accepted substep converged.
+    last attempt's; ``converged``: every accepted substep converged; ``overflow``: an
+    attempt met more self-contact pairs than slots (``None`` without self-contact).
     """
 
     newton_iters: jax.Array
@@ -88,6 +89,7 @@ class Totals:
     residual: jax.Array
     converged: jax.Array
     trace: NewtonTrace | None
+    overflow: jax.Array | None = None
 
 
 @pytree_dataclass
@@ -154,7 +156,7 @@ def search(cloth, x0, v0, h, integ, rtol, prev, layout, start, tight, before):
         ck, pk = substep_scene(cloth, prev, c.pos, size, D)
         p = bdf2.step_problem(ck, c.x, c.v, hk, pk, layout, c.before)
         w0, accel = None, c.accel
-        if start is not None and p.contact is None:
+        if start is not None and not p.touches:
             if before is None:
                 later = hk**2 * (c.accel - g)
             else:  # the same positions x + h_k v + h_k^2 a, as a deviation on BDF2's problem
@@ -179,7 +181,8 @@ def search(cloth, x0, v0, h, integ, rtol, prev, layout, start, tight, before):
                         keep(jnp.maximum(t.rel_grad, end.rel), t.rel_grad),
                         keep(jnp.maximum(t.grad_norm, gnorm), t.grad_norm),
                         keep(jnp.maximum(t.cond_bound, pr.condition_bound(p, end.terms)), t.cond_bound),
-                        s.alpha, s.res, t.converged & (conv | ~accept), s.trace)
+                        s.alpha, s.res, t.converged & (conv | ~accept), s.trace,
+                        None if s.overflow is None else t.overflow | s.overflow)
         pos = jnp.where(accept, c.pos + size, c.pos)
         level = jnp.where(accept, D - _trailing_zeros(jnp.maximum(pos, 1)), c.level + 1)
         level = jnp.clip(level, 0, D)
@@ -196,7 +199,8 @@ def search(cloth, x0, v0, h, integ, rtol, prev, layout, start, tight, before):
     c0 = SubstepLoop(x=x0, v=v0, pos=jnp.int32(0), level=jnp.int32(0), count=jnp.int32(0), tries=jnp.int32(0),
                      accel=jnp.zeros_like(x0), ws=jnp.zeros((2**D,) + x0.shape, dtype), levels=jnp.zeros(2**D, jnp.int32),
                      failed=jnp.array(False),
-                     totals=Totals(jnp.int32(0), jnp.int32(0), jnp.int32(0), z, z, z, z, z, jnp.array(True), trace),
+                     totals=Totals(jnp.int32(0), jnp.int32(0), jnp.int32(0), z, z, z, z, z, jnp.array(True), trace,
+                                   jnp.array(False) if cloth.self_contact else None),
                      before=before)
     return lax.while_loop(lambda c: (c.pos < 2**D) & ~c.failed & (c.tries < 2 ** (D + 1)), attempt, c0)
 

@@ -75,7 +75,8 @@ def _layout_of(springs, rest, N: int) -> Layout:
     out = _CACHE.get(key_rest)
     if out is None:
         ids, count = aggregate(np.asarray(rest)) if is_concrete(rest) else index_aggregates(N)
-        out = ParticleLayout(jnp.asarray(incidence(s, N)), jnp.asarray(ids), count)
+        with jax.ensure_compile_time_eval():  # concrete arrays even while a ``jit`` traces: they are cached
+            out = ParticleLayout(jnp.asarray(incidence(s, N)), jnp.asarray(ids), count)
         _remember(_CACHE, key_rest, out)
     return out
 

@@ -78,7 +78,7 @@ def lumped_masses(V, T, density: float) -> np.ndarray:
 
 def from_mesh(vertices, triangles, *, stiffness: float = 100.0, bending: float | None = None, density: float = 0.2,
               damping: float = 0.02, gravity: float = 9.8, pins=None, dtype=None, colliders=(),
-              contact_gap=None) -> Cloth:
+              contact_gap=None, self_contact: bool = False, self_contact_pairs: int | None = None) -> Cloth:
     """A cloth from a triangle mesh.
 
     - Structural springs on the unique triangle edges, of stiffness ``stiffness``.
@@ -103,10 +103,12 @@ def from_mesh(vertices, triangles, *, stiffness: float = 100.0, bending: float |
       pins: pinned vertex ids (default none).
       dtype: float32 or float64 (default: JAX's default float).
       colliders, contact_gap: as for :class:`Cloth`.
+      self_contact, self_contact_pairs: as for :class:`Cloth` (the triangles are the mesh's).
 
     Raises:
       ValueError: bad shapes, ids out of range, zero-area or duplicated triangles,
-        non-manifold edges, vertices in no triangle, non-positive density.
+        non-manifold edges, vertices in no triangle, non-positive density; with
+        ``self_contact``, a rest shape that intersects itself (the first crossing named).
     """
     V, T = check_triangles(vertices, triangles)
     density = check_real("density", density, minimum=0.0, strict=True)
@@ -132,7 +134,8 @@ def from_mesh(vertices, triangles, *, stiffness: float = 100.0, bending: float |
         rest=V.astype(dtype), springs=springs, rest_length=L.astype(dtype), stiffness=k.astype(dtype),
         mass=lumped_masses(V, T, density).astype(dtype), pinned=pin_mask(len(V), [] if pins is None else pins),
         gravity=np.asarray([0.0, -gravity, 0.0], dtype), damping=np.asarray(damping, dtype), colliders=colliders,
-        contact_gap=contact_gap,
+        contact_gap=contact_gap, contact_faces=T if self_contact else None, self_contact=bool(self_contact),
+        self_contact_pairs=self_contact_pairs or 0,
     )
 
 

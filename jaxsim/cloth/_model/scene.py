@@ -12,6 +12,7 @@ from ..._dataclass import is_concrete, pytree_dataclass, static_field
 from ..._dtype import as_float, check_array_dtype, check_float_dtype, default_float
 from ..._validate import check_finite, check_int, check_positive, check_real, check_shape
 from .colliders import check_colliders, count_inside, describe_inside
+from .._self.intersect import first_intersection
 from .._layout.stencil import Stencil
 
 
@@ -38,6 +39,14 @@ class Cloth:
         diagonal of the rest shape's bounding box (``_implicit.contact`` module doc).
       contact_stiffness: ``()`` barrier stiffness per unit mass ``kappa`` (1/s^2), or
         ``None`` (default) for ``(|g| + dhat/h^2) / dhat`` at step ``h``.
+      contact_faces: ``(F, 3)`` int32 particle ids of the triangles that self-contact
+        keeps apart (read-only NumPy, like ``springs``), or ``None``.
+      contact_edges: ``(E, 2)`` their unique edges (derived from the faces).
+      self_contact: static flag: IPC's barrier between the scene's own triangles
+        (``_self``); the default False compiles no self-contact code at all.
+      self_contact_pairs: static number of slots for each kind of pair (point–triangle,
+        edge–edge) a step may see (default ``8 N``); a step that finds more says so in
+        ``StepInfo.pair_overflow`` and is not converged.
 
     Raises:
       ValueError: on wrong shapes, non-finite values, non-positive masses or rest
@@ -56,6 +65,10 @@ class Cloth:
     colliders: tuple = ()
     contact_gap: jax.Array | None = None
     contact_stiffness: jax.Array | None = None
+    contact_faces: jax.Array | None = None
+    contact_edges: jax.Array | None = None
+    self_contact: bool = static_field(default=False)
+    self_contact_pairs: int = static_field(default=0)
 
     def __post_init__(self):
         leaves = (self.rest, self.springs, self.rest_length, self.stiffness, self.mass, self.pinned,
@@ -115,6 +128,16 @@ class Cloth:
             kappa = check_finite("contact_stiffness", check_shape("contact_stiffness", self.contact_stiffness, ()))
             check_positive("contact_stiffness", kappa)
             set_(self, "contact_stiffness", as_float(kappa, dtype))
+        if self.self_contact or self.contact_faces is not None:
+            faces, edges = check_faces(self.contact_faces, N, self.self_contact)
+            set_(self, "contact_faces", faces)
+            set_(self, "contact_edges", edges)
+            cap = check_int("self_contact_pairs", self.self_contact_pairs or 8 * N, 1)
+            set_(self, "self_contact_pairs", cap)
+            if self.self_contact:
+                hit = first_intersection(np.asarray(rest, np.float64), faces, edges)
+                if hit is not None:
+                    raise ValueError(f"the rest shape intersects itself: {hit}")
         inside = is_concrete(*jax.tree_util.tree_leaves(self.colliders)) and count_inside(
             self.colliders, self.rest, ~np.asarray(pinned))
         if inside:
@@ -131,6 +154,23 @@ class Cloth:
     @property
     def dtype(self):
         return self.rest.dtype
+
+
+def check_faces(faces, N: int, needed: bool):
+    """``(faces (F, 3), edges (E, 2))`` as read-only int32 arrays (``ValueError`` when
+    self-contact is asked for without faces, or on bad ids)."""
+    if faces is None:
+        raise ValueError("self_contact=True needs the scene's triangles: build it with grid(..., self_contact=True) "
+                         "or from_mesh(..., self_contact=True), or pass contact_faces=(F, 3) particle ids")
+    F = check_shape("contact_faces", np.asarray(faces), (None, 3))
+    if F.size and not np.issubdtype(F.dtype, np.integer):
+        raise ValueError(f"contact_faces must hold integer particle ids, got dtype {F.dtype}")
+    if F.size and (F.min() < 0 or F.max() >= N):
+        raise ValueError(f"contact_faces ids must lie in [0, {N}), got range [{F.min()}, {F.max()}]")
+    if needed and F.shape[0] == 0:
+        raise ValueError("self_contact=True needs at least one triangle in contact_faces")
+    e = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
+    return frozen_ids(F), frozen_ids(np.unique(e, axis=0).reshape(-1, 2))
 
 
 def frozen_ids(ids) -> np.ndarray:
@@ -194,7 +234,7 @@ def grid_springs(n: int) -> tuple[np.ndarray, np.ndarray]:
 
 def grid(n: int, spacing: float = 0.2, *, origin=(0.0, 1.5, -1.0), mass: float = 1.0, stiffness: float = 100.0,
          damping: float = 0.2, gravity: float = 0.3, pins=None, dtype=None, colliders=(),
-         contact_gap=None) -> Cloth:
+         contact_gap=None, self_contact: bool = False, self_contact_pairs: int | None = None) -> Cloth:
     """A square cloth of ``(n+1) x (n+1)`` particles in the plane ``y = origin[1]``.
 
     Particle ``(i, j)`` (id ``i*(n+1) + j``) starts at ``origin + (spacing*i, 0, spacing*j)``;
@@ -212,6 +252,8 @@ def grid(n: int, spacing: float = 0.2, *, origin=(0.0, 1.5, -1.0), mass: float =
       dtype: float dtype (default float32, float64 under ``jax_enable_x64``).
       colliders: ``Plane``/``Sphere``/``Capsule`` tuple (``Cloth.colliders``).
       contact_gap: the barrier distance ``dhat`` (m); default as for :class:`Cloth`.
+      self_contact, self_contact_pairs: as for :class:`Cloth` (the triangles are
+        ``grid_triangles(n)``).
     """
     n = check_int("grid n (cells per side)", n, 1)
     spacing = check_real("spacing", spacing, minimum=0.0, strict=True)
@@ -231,7 +273,15 @@ def grid(n: int, spacing: float = 0.2, *, origin=(0.0, 1.5, -1.0), mass: float =
         stiffness=np.full(len(springs), stiffness, dtype), mass=np.full(m * m, mass, dtype),
         pinned=pin_mask(m * m, pins), gravity=np.asarray([0.0, -gravity, 0.0], dtype),
         damping=np.asarray(damping, dtype), colliders=colliders, contact_gap=contact_gap,
+        contact_faces=_grid_faces(n) if self_contact else None, self_contact=bool(self_contact),
+        self_contact_pairs=self_contact_pairs or 0,
     )
+
+
+def _grid_faces(n):
+    from .mesh import grid_triangles  # (mesh builds on this module)
+
+    return grid_triangles(n)
 
 
 def lab_cloth(dtype=None) -> Cloth:
@@ -245,6 +295,8 @@ def replace(cloth: Cloth, **kw) -> Cloth:
     Scalars given for the per-spring ``stiffness``/``rest_length`` or the per-particle
     ``mass`` are broadcast to ``(S,)``/``(N,)`` in the scene's dtype, and a new
     ``damping`` sets the static ``damped`` flag (so a zero damping can still be traced).
+    ``self_contact=True`` needs the scene's triangles: a scene built with them
+    (``grid``/``from_mesh(..., self_contact=True)``), or ``contact_faces=`` given too.
     """
     shapes = {"stiffness": (cloth.num_springs,), "rest_length": (cloth.num_springs,), "mass": (cloth.num_particles,)}
     for name, shape in shapes.items():

@@ -1,0 +1,299 @@
+"""Cloth self-contact: distances, broadphase, additive CCD, the barrier, and scenes that
+must never pass through themselves (checked by an independent triangle-triangle test)."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+from scipy.optimize import minimize
+
+from jaxsim import cloth as C
+from jaxsim.cloth._self import broadphase as bp, ccd
+from jaxsim.cloth._self.distance import point_triangle2, segment_segment2
+from jaxsim.cloth._self.terms import _pair_energy, build
+
+from _helpers import all_eqns, self_intersections, step_jaxpr, triangle_pairs_intersect
+
+
+def _ref_point_triangle2(p, a, b, c):
+    """min over the triangle of |p - q|^2 by SLSQP on barycentric coordinates (float64)."""
+    f = lambda uv: np.sum((a + uv[0] * (b - a) + uv[1] * (c - a) - p) ** 2)  # noqa: E731
+    best = np.inf
+    for s in ((1 / 3, 1 / 3), (0.8, 0.1), (0.1, 0.8), (0.05, 0.05)):
+        r = minimize(f, s, method="SLSQP", bounds=[(0, 1), (0, 1)], tol=1e-14,
+                     constraints=[{"type": "ineq", "fun": lambda uv: 1 - uv[0] - uv[1]}])
+        best = min(best, r.fun)
+    return best
+
+
+def _ref_segment2(a0, a1, b0, b1):
+    f = lambda st_: np.sum((a0 + st_[0] * (a1 - a0) - b0 - st_[1] * (b1 - b0)) ** 2)  # noqa: E731
+    return min(minimize(f, s, method="L-BFGS-B", bounds=[(0, 1), (0, 1)], tol=1e-15).fun
+               for s in ((0.5, 0.5), (0, 0), (1, 1), (0, 1), (1, 0)))
+
+
+def test_distances_against_numpy_references():
+    rng = np.random.default_rng(0)
+    pt = jax.jit(point_triangle2)
+    ee = jax.jit(segment_segment2)
+    for _ in range(30):
+        P = rng.normal(size=(4, 3))
+        assert float(pt(*P)) == pytest.approx(_ref_point_triangle2(*P), rel=1e-6, abs=1e-12)
+        assert float(ee(*P)) == pytest.approx(_ref_segment2(*P), rel=1e-6, abs=1e-12)
+    a, b, c = np.array([0.0, 0, 0]), np.array([1.0, 0, 0]), np.array([0.0, 1, 0])
+    # degenerate configurations: a point on an edge, on a vertex, above the interior
+    assert float(pt(np.array([0.5, 0, 0]), a, b, c)) == 0.0
+    assert float(pt(np.array([1.0, 0, 0]), a, b, c)) == 0.0
+    assert float(pt(np.array([0.2, 0.2, 0.3]), a, b, c)) == pytest.approx(0.09, rel=1e-14)
+    # parallel edges, overlapping and apart; collinear; crossing
+    assert float(ee(a, b, np.array([0.5, 0.1, 0]), np.array([2.0, 0.1, 0]))) == pytest.approx(0.01, rel=1e-14)
+    assert float(ee(a, b, np.array([1.5, 0.1, 0]), np.array([2.0, 0.1, 0]))) == pytest.approx(0.26, rel=1e-14)
+    assert float(ee(a, b, np.array([2.0, 0, 0]), np.array([3.0, 0, 0]))) == pytest.approx(1.0, rel=1e-14)
+    assert float(ee(a, b, np.array([0.5, -1, 0.2]), np.array([0.5, 1, 0.2]))) == pytest.approx(0.04, rel=1e-14)
+
+
+def test_barrier_derivatives_finite_down_to_contact():
+    """The pair energies, gradients and Hessians have no NaN as d -> 0 and beyond dhat,
+    for point-triangle and for (near-)parallel edges (the mollifier)."""
+    c = C.grid(2, 0.5, self_contact=True)
+    sc = build(c, 10.0)
+    ids = jnp.array([0, 1, 2, 3], jnp.int32)
+    for kind in (0, 1):
+        e_of = lambda X, i, kind=kind: _pair_energy(sc, kind, X[None], i[None])[0]  # noqa: E731
+        f = jax.jit(lambda X, i, e_of=e_of: (e_of(X, i), jax.grad(e_of)(X, i), jax.hessian(e_of)(X, i)))
+        for d in (1e-12, 1e-8, 1e-5, 0.5 * float(sc.dhat), 2 * float(sc.dhat)):
+            for tilt in (0.0, 1e-9, 0.3):
+                X = jnp.array([[0.2, d, 0.2], [0, 0, 0], [1.0, 0, tilt], [0, 0, 1.0]])
+                if kind == 1:
+                    X = jnp.array([[0, d, 0], [1.0, d, tilt], [0.0, 0, 0], [1.0, 0, 0]])
+                e, g, H = f(X, ids)
+                assert np.isfinite(float(e)) and np.all(np.isfinite(g)) and np.all(np.isfinite(H)), (kind, d, tilt)
+                assert (float(e) > 0) == (d < float(sc.dhat) and (kind == 0 or tilt > 0)), (kind, d, tilt)
+
+
+def _boxes(rng, n, size):
+    c = rng.uniform(0, 1, (n, 3))
+    r = rng.uniform(0, size, (n, 3))
+    return jnp.asarray(c - r), jnp.asarray(c + r)
+
+
+@settings(max_examples=10, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), size=st.floats(0.001, 0.1))
+def test_broadphase_equals_brute_force(seed, size):
+    rng = np.random.default_rng(seed)
+    lo_a, hi_a = _boxes(rng, 120, size)
+    lo_b, hi_b = _boxes(rng, 90, size)
+    ref = np.all((np.asarray(lo_a)[:, None] <= np.asarray(hi_b)[None]) & (np.asarray(lo_b)[None] <= np.asarray(hi_a)[:, None]), -1)
+    found = bp.overlapping_jit(lo_a, hi_a, lo_b, hi_b, 4000)
+    on = np.asarray(found.on)
+    assert not bool(found.overflow)
+    got = set(zip(np.asarray(found.a)[on].tolist(), np.asarray(found.b)[on].tolist()))
+    assert got == set(zip(*map(np.ndarray.tolist, np.nonzero(ref))))
+    same = bp.overlapping_jit(lo_a, hi_a, lo_a, hi_a, 4000, same=True)
+    on = np.asarray(same.on)
+    ref = np.all((np.asarray(lo_a)[:, None] <= np.asarray(hi_a)[None]) & (np.asarray(lo_a)[None] <= np.asarray(hi_a)[:, None]), -1)
+    assert set(zip(np.asarray(same.a)[on].tolist(), np.asarray(same.b)[on].tolist())) == {
+        (i, j) for i, j in zip(*np.nonzero(ref)) if i < j}
+
+
+def test_broadphase_overflow_is_reported():
+    rng = np.random.default_rng(1)
+    lo, hi = _boxes(rng, 200, 0.2)
+    found = bp.overlapping_jit(lo, hi, lo, hi, 16, same=True)
+    assert bool(found.overflow)
+    on = np.asarray(found.on)
+    a, b = np.asarray(found.a)[on], np.asarray(found.b)[on]  # what it kept are true pairs
+    assert np.all((np.asarray(lo)[a] <= np.asarray(hi)[b]) & (np.asarray(lo)[b] <= np.asarray(hi)[a]))
+    assert bool(bp.overlapping_jit(lo, hi, lo, hi, 40000, same=True).overflow) is False
+
+
+def test_additive_ccd_is_safe_and_close():
+    """A point moving onto a triangle, and two crossing edges: the time returned is before
+    the exact time of impact, within the separation target of it, and 1 when they miss."""
+    rng = np.random.default_rng(3)
+    K = 64
+    tri = np.array([[0.0, 0, 0], [1, 0, 0], [0, 0, 1]])
+    p0 = np.stack([rng.uniform(0.05, 0.4, K), rng.uniform(0.1, 1.0, K), rng.uniform(0.05, 0.4, K)], -1)
+    fall = rng.uniform(0.5, 3.0, K) * p0[:, 1]  # how far it falls (misses when short)
+    assert np.sum(fall < 0.9 * p0[:, 1]) > 5
+    X = np.concatenate([p0[:, None], np.broadcast_to(tri, (K, 3, 3))], axis=1)
+    D = np.zeros_like(X)
+    D[:, 0, 1] = -fall
+    D[:, 1:] = rng.normal(scale=0.01, size=(K, 3, 3)) * 0  # the triangle at rest
+    t = np.asarray(ccd.additive(jnp.asarray(X), jnp.asarray(D), point_triangle2, 1))
+    exact = np.where(fall > p0[:, 1], p0[:, 1] / fall, 1.0)
+    assert np.all(t <= exact + 1e-15)
+    hit = fall > p0[:, 1]
+    assert np.all(t[fall < 0.9 * p0[:, 1]] == 1.0)  # ends farther than the separation target: the whole step
+    # the pair stops at no less than 10% of its distance, and not far before that
+    assert np.all(p0[hit, 1] - t[hit] * fall[hit] >= 0.1 * p0[hit, 1] * (1 - 1e-12))
+    assert np.all(p0[hit, 1] - t[hit] * fall[hit] <= 0.2 * p0[hit, 1])
+
+
+def _two_layers(n=5, gap=0.04, colliders=(), dtype=np.float64, **kw):
+    top = C.grid(n, 0.6 / n, origin=(-0.3, 0.6 + gap, -0.3)).rest
+    low = C.grid(n, 0.6 / n, origin=(-0.27, 0.6, -0.28)).rest
+    T1 = C.grid_triangles(n)
+    V = np.concatenate([top, low])
+    T = np.concatenate([T1, T1 + (n + 1) ** 2])
+    return C.from_mesh(V, T, stiffness=300.0, density=0.3, dtype=dtype, colliders=colliders, **kw)
+
+
+def test_bad_inputs_raise():
+    V = np.array([[0, 0, 0], [1, 0, 0], [0, 0, 1], [0.3, -0.5, 0.3], [0.3, 0.5, 0.3], [0.4, 0.5, 0.2]], float)
+    T = np.array([[0, 1, 2], [3, 4, 5]])
+    with pytest.raises(ValueError, match=r"rest shape intersects itself: edge \d+ \(particles \[3, 4\]\).*triangle 0"):
+        C.from_mesh(V, T, self_contact=True)
+    ok = C.from_mesh(V + np.array([0, 0, 0, 0, 1, 0])[:, None] * 0 + np.r_[np.zeros((3, 3)), np.tile([0, 1.0, 0], (3, 1))],
+                     T, self_contact=True)
+    bad = C.State(jnp.asarray(V), jnp.zeros((6, 3)))
+    with pytest.raises(ValueError, match="state intersects itself"):
+        C.step(ok, bad, 1 / 60)
+    with pytest.raises(ValueError, match="needs the scene's triangles"):
+        C.replace(C.grid(3), self_contact=True)
+    with pytest.raises(ValueError, match="needs ImplicitEuler"):
+        C.step(ok, C.State.at_rest(ok), 1 / 60, C.ExplicitEuler())
+    with pytest.raises(ValueError, match="BDF2"):
+        C.step(ok, C.State.at_rest(ok), 1 / 60, C.BDF2())
+    with pytest.raises(ValueError, match="contact_faces ids"):
+        C.replace(C.grid(1), self_contact=True, contact_faces=np.array([[0, 1, 7]]))
+    with pytest.raises(ValueError, match="self_contact_pairs"):
+        C.grid(2, self_contact=True, self_contact_pairs=-3)
+
+
+def test_off_compiles_no_self_contact_code():
+    """Without ``self_contact`` the step holds no broadphase (its cell hash and prefix sum)
+    and no barrier (its log); with it, it does."""
+    base = C.grid(3, 0.2)
+    names = lambda c: {e.primitive.name for e in all_eqns(step_jaxpr(c, C.ImplicitEuler()))}  # noqa: E731
+    off, on = names(base), names(C.grid(3, 0.2, self_contact=True))
+    marks = {"xor", "cumsum", "log"}
+    assert not marks & off and marks <= on
+    assert names(C.replace(C.grid(3, 0.2, self_contact=True), self_contact=False)) == off
+
+
+def test_the_independent_check_sees_crossings():
+    """The numpy triangle-triangle test: crossing, touching, coplanar overlapping, apart."""
+    P = np.array([[0.0, 0, 0], [1, 0, 0], [0, 0, 1]])
+    cases = {
+        "crossing": (np.array([[0.2, -0.5, 0.2], [0.2, 0.5, 0.2], [0.3, 0.5, 0.1]]), True),
+        "touching": (np.array([[0.2, 0, 0.2], [0.2, 0.5, 0.2], [0.3, 0.5, 0.1]]), True),
+        "coplanar": (np.array([[0.1, 0, 0.1], [2, 0, 0.1], [0.1, 0, 2]]), True),
+        "above": (np.array([[0.2, 1e-9, 0.2], [0.2, 0.5, 0.2], [0.3, 0.5, 0.1]]), False),
+        "beside": (np.array([[0.6, 0, 0.6], [2, 0, 0.6], [0.6, 0, 2]]), False),
+    }
+    for name, (Q, want) in cases.items():
+        assert bool(triangle_pairs_intersect(P[None], Q[None])[0]) == want, name
+
+
+# ---------------------------------------------------------------- scenes
+
+DT = 1 / 60
+
+
+def _min_gap(x, c):
+    """The least distance between the two layers' particles and the other layer's
+    triangles, at positions ``x (N, 3)`` (numpy, float64)."""
+    x = np.asarray(x, np.float64)
+    half = x.shape[0] // 2
+    F = np.asarray(c.contact_faces)
+    low = F[F.min(1) >= half]
+    P = x[:half][:, None]
+    T = x[low][None]
+    d = point_triangle2(jnp.asarray(np.broadcast_to(P, (half, len(low), 3))), *[jnp.asarray(np.broadcast_to(T[:, :, i], (half, len(low), 3))) for i in range(3)])
+    return float(np.sqrt(np.min(np.asarray(d))))
+
+
+def _check_frames(states, c):
+    """Every returned frame: no two triangles without a common vertex intersect."""
+    X = np.asarray(states.x, np.float64)
+    bad = [k for k in range(X.shape[0]) if self_intersections(X[k], c.contact_faces)]
+    assert not bad, f"frames {bad} intersect"
+
+
+def test_two_layers_on_a_sphere_never_intersect():
+    """Two layers dropped onto a sphere (float32, the default dtype's scene): the upper
+    one lands on the lower one, every frame is free of intersections, every step is
+    taken and converged."""
+    sphere = C.Sphere(center=(0.0, 0.25, 0.0), radius=0.25)
+    c = _two_layers(colliders=(sphere,), dtype=np.float32, self_contact=True)
+    states, info = C.rollout(c, C.State.at_rest(c), DT, 45)
+    _check_frames(states, c)
+    assert bool(np.all(info.stable)) and float(np.mean(info.converged)) == 1.0
+    assert not bool(np.any(info.pair_overflow))
+    # the layers did meet: the upper layer's particles come within 2 dhat of the lower one
+    assert min(_min_gap(states.x[k], c) for k in (20, 30, 44)) < 2 * float(c.contact_gap)
+
+
+def test_strip_piling_onto_itself_never_intersects():
+    """A strip standing on its end on the floor falls, buckles and piles onto itself."""
+    n, w, spacing = 12, 3, 0.04
+    V = np.stack(np.meshgrid(np.arange(w) * spacing, np.arange(n + 1) * spacing, indexing="ij"), -1).reshape(-1, 2)
+    V = np.stack([V[:, 0], 0.01 + V[:, 1], 0.002 * np.sin(7 * V[:, 1])], -1)  # upright, slightly bent
+    idx = np.arange(w * (n + 1)).reshape(w, n + 1)
+    T = np.concatenate([np.stack([idx[:-1, :-1], idx[1:, :-1], idx[1:, 1:]], -1).reshape(-1, 3),
+                        np.stack([idx[:-1, :-1], idx[1:, 1:], idx[:-1, 1:]], -1).reshape(-1, 3)])
+    floor = C.Plane(normal=(0.0, 1.0, 0.0), offset=0.0, friction=0.3)
+    c = C.from_mesh(V, T, stiffness=200.0, bending=0.5, density=0.2, colliders=(floor,), self_contact=True)
+    states, info = C.rollout(c, C.State.at_rest(c), DT, 40)
+    _check_frames(states, c)
+    assert bool(np.all(info.stable)) and float(np.mean(info.converged)) >= 0.95
+    assert float(np.max(states.x[-1, :, 1])) < 0.15  # the 0.49 m strip has folded down
+
+
+def test_cloth_over_a_thin_rod_never_intersects():
+    """A cloth draped over a thin rod folds down on both sides without passing through itself."""
+    rod = C.Capsule(a=(-0.5, 0.3, 0.0), b=(0.5, 0.3, 0.0), radius=0.01, friction=0.2)
+    c = C.grid(6, 0.05, origin=(-0.15, 0.33, -0.15), mass=0.01, stiffness=80.0, damping=0.0, gravity=9.8, pins=[],
+               colliders=(rod,), self_contact=True)
+    states, info = C.rollout(c, C.State.at_rest(c), DT, 40)
+    _check_frames(states, c)
+    assert bool(np.all(info.stable)) and float(np.mean(info.converged)) >= 0.95
+
+
+@settings(max_examples=3, deadline=None)
+@given(dx=st.floats(-0.1, 0.1), dz=st.floats(-0.1, 0.1), speed=st.floats(0.0, 2.0))
+def test_random_drops_never_intersect(dx, dz, speed):
+    """The upper layer shifted and thrown down at random (the same compiled program as
+    the sphere scene)."""
+    sphere = C.Sphere(center=(0.0, 0.25, 0.0), radius=0.25)
+    c = _two_layers(colliders=(sphere,), dtype=np.float32, self_contact=True)
+    half = c.num_particles // 2
+    x = c.rest.at[:half].add(jnp.array([dx, 0.0, dz], jnp.float32))
+    v = jnp.zeros_like(x).at[:half, 1].set(-speed)
+    states, info = C.rollout(c, C.State(x, v), DT, 45)
+    _check_frames(states, c)
+    assert bool(np.all(info.stable))
+
+
+def test_capacity_overflow_is_reported_not_silent():
+    """Too few pair slots: the step says so, and is not converged."""
+    c = _two_layers(gap=0.0005, self_contact=True, self_contact_pairs=2)
+    assert 0.0005 < float(c.contact_gap)  # the layers start within the barrier: many pairs
+    _, info = C.step(c, C.State.at_rest(c), DT, C.ImplicitEuler(max_substep_depth=0))
+    assert bool(info.pair_overflow) and not bool(info.converged)
+
+
+def test_implicit_derivative_through_the_barrier():
+    """The derivative of a step's end positions with respect to gravity, with the upper
+    layer resting on the barrier: implicit-function derivative against central finite
+    differences (float64)."""
+    c = _two_layers(n=2, gap=0.0008, self_contact=True, contact_gap=0.001)
+    low = np.zeros(c.num_particles, bool)
+    low[c.num_particles // 2:] = True
+    c = C.replace(c, pinned=jnp.asarray(low))
+    integ = C.ImplicitEuler(max_substep_depth=0, rtol=1e-12, newton_iters=200)
+
+    def loss(g):
+        s, info = C.step(C.replace(c, gravity=jnp.array([0.0, -g, 0.0])), C.State.at_rest(c), DT, integ)
+        return jnp.sum(s.x[:, 1] * jnp.arange(c.num_particles)), info
+
+    (val, info), grad = jax.value_and_grad(loss, has_aux=True)(9.8)
+    assert bool(info.converged)
+    eps = 1e-4
+    fd = (loss(9.8 + eps)[0] - loss(9.8 - eps)[0]) / (2 * eps)
+    assert float(grad) == pytest.approx(float(fd), rel=1e-5)
+    assert abs(float(grad)) > 1e-6  # the barrier holds the layer: the end positions still depend on g
