@@ -85,7 +85,7 @@ def _guard_memory_mappings():
 #: ``--no-loadscope-reorder`` (pyproject) xdist hands out files in this order, so the
 #: single-test subprocess files (the report, the sharding check) do not start last while
 #: the other worker idles (xdist's default order is by test count, which put them at the end).
-SLOW_FIRST = ("test_notebooks.py", "test_report.py", "test_ik_limits.py", "test_cloth_trust.py", "test_ik_tree.py",
+SLOW_FIRST = ("test_notebooks.py", "test_report.py", "test_cloth_self_contact.py", "test_ik_limits.py", "test_cloth_trust.py", "test_ik_tree.py",
               "test_cloth_bdf2.py", "test_ik_solvers.py", "test_differentiable.py", "test_cloth_contact.py",
               "test_cloth_stability.py", "test_cloth_start.py", "test_cli.py", "test_sharding.py",
               "test_cloth_stencil.py", "test_cloth_coarse.py", "test_input_sweep.py", "test_cloth_substeps.py",

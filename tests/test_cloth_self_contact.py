@@ -214,6 +214,7 @@ def _check_frames(states, c):
     assert not bad, f"frames {bad} intersect"
 
 
+@pytest.mark.slow
 def test_two_layers_on_a_sphere_never_intersect():
     """Two layers dropped onto a sphere (float32, the default dtype's scene): the upper
     one lands on the lower one, every frame is free of intersections, every step is
@@ -228,6 +229,7 @@ def test_two_layers_on_a_sphere_never_intersect():
     assert min(_min_gap(states.x[k], c) for k in (20, 30, 44)) < 2 * float(c.contact_gap)
 
 
+@pytest.mark.slow
 def test_strip_piling_onto_itself_never_intersects():
     """A strip standing on its end on the floor falls, buckles and piles onto itself."""
     n, w, spacing = 12, 3, 0.04
@@ -244,6 +246,7 @@ def test_strip_piling_onto_itself_never_intersects():
     assert float(np.max(states.x[-1, :, 1])) < 0.15  # the 0.49 m strip has folded down
 
 
+@pytest.mark.slow
 def test_cloth_over_a_thin_rod_never_intersects():
     """A cloth draped over a thin rod folds down on both sides without passing through itself."""
     rod = C.Capsule(a=(-0.5, 0.3, 0.0), b=(0.5, 0.3, 0.0), radius=0.01, friction=0.2)
@@ -254,6 +257,7 @@ def test_cloth_over_a_thin_rod_never_intersects():
     assert bool(np.all(info.stable)) and float(np.mean(info.converged)) >= 0.95
 
 
+@pytest.mark.slow
 @settings(max_examples=3, deadline=None)
 @given(dx=st.floats(-0.1, 0.1), dz=st.floats(-0.1, 0.1), speed=st.floats(0.0, 2.0))
 def test_random_drops_never_intersect(dx, dz, speed):
@@ -269,6 +273,7 @@ def test_random_drops_never_intersect(dx, dz, speed):
     assert bool(np.all(info.stable))
 
 
+@pytest.mark.slow
 def test_capacity_overflow_is_reported_not_silent():
     """Too few pair slots: the step says so, and is not converged."""
     c = _two_layers(gap=0.0005, self_contact=True, self_contact_pairs=2)
@@ -277,6 +282,7 @@ def test_capacity_overflow_is_reported_not_silent():
     assert bool(info.pair_overflow) and not bool(info.converged)
 
 
+@pytest.mark.slow
 def test_implicit_derivative_through_the_barrier():
     """The derivative of a step's end positions with respect to gravity, with the upper
     layer resting on the barrier: implicit-function derivative against central finite
@@ -297,3 +303,18 @@ def test_implicit_derivative_through_the_barrier():
     fd = (loss(9.8 + eps)[0] - loss(9.8 - eps)[0]) / (2 * eps)
     assert float(grad) == pytest.approx(float(fd), rel=1e-5)
     assert abs(float(grad)) > 1e-6  # the barrier holds the layer: the end positions still depend on g
+
+
+@pytest.mark.slow
+def test_batch_rollout_equals_rollouts():
+    """Two scenes with self-contact in one ``batch_rollout``: each equals its own rollout."""
+    sphere = C.Sphere(center=(0.0, 0.25, 0.0), radius=0.25)
+    a = _two_layers(n=3, colliders=(sphere,), self_contact=True)
+    b = C.replace(a, stiffness=a.stiffness * 2)
+    states, infos = C.batch_rollout([a, b], C.State.at_rest(a), DT, 30)
+    assert bool(np.all(infos.converged))
+    for k, scene in enumerate((a, b)):
+        alone, _ = C.rollout(scene, C.State.at_rest(scene), DT, 30)
+        np.testing.assert_allclose(states.x[k], alone.x, rtol=0, atol=1e-10)
+    with pytest.raises(ValueError, match="self_contact"):
+        C.stack_scenes([a, C.replace(a, self_contact=False)])
