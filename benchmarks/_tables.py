@@ -100,6 +100,21 @@ def substeps_table():
     return "\n".join(out)
 
 
+def self_contact_table():
+    out = ["| layers | dtype | self-contact | converged | substeps (most) | Newton/step | ms/step | cost | compile (s) | "
+           "frames intersecting | least gap (mm) |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for name in ("cloth_self_contact_quick", "cloth_self_contact"):
+        if not os.path.exists(os.path.join(RESULTS, name + ".json")):
+            continue
+        for r in load(name)["rows"]:
+            cost = f"{r['cost_ratio']:.1f}x" if "cost_ratio" in r else "1"
+            out.append(f"| 2 x {r['n']}x{r['n']}, {r['steps']} steps | {r['dtype']} | {'on' if r['self_contact'] else 'off'} | "
+                       f"{100 * r['converged_share']:.1f}% | {r['substeps_max']} | {r['newton_per_step']:.1f} | "
+                       f"{r['ms_per_step']:.0f} | {cost} | {r['compile_s']:.1f} | {r['frames_intersecting']} | "
+                       f"{1e3 * r['least_layer_gap_m']:.2f} |")
+    return "\n".join(out)
+
+
 def bdf2_table():
     d = load("cloth_bdf2")
     out = ["| swing | integrator | dt | error at 1 s (m) | energy kept | Newton/step | ms per simulated s | compile (s) |",
@@ -177,7 +192,8 @@ def headline_table():
 
 
 TABLES = {"vbd": vbd_table, "headline": headline_table, "ik": ik_table, "stability": stability_table, "cloth": cloth_table, "scaling": scaling_table,
-          "substeps": substeps_table, "bdf2": bdf2_table}
+          "substeps": substeps_table, "bdf2": bdf2_table,
+          "self_contact": self_contact_table}
 _ROOT = os.path.join(os.path.dirname(RESULTS), os.pardir)
 GUIDES = (os.path.join(_ROOT, "docs", "performance.md"), os.path.join(_ROOT, "README.md"))
 _BLOCK = re.compile(r"(<!-- generated: (\w+) -->\n)(.*?)(<!-- end generated -->)", re.S)
