@@ -54,7 +54,7 @@ def first_step(sv: NewtonSetup, w, dx):
         return a, sc.pairs(p.selfc, x, a * dx), k + 1
 
     a, seg, _ = lax.while_loop(lambda c: c[1].overflow & (c[2] <= SHORTER), shorter,
-                               (a, sc.empty_pairs(p.selfc, x.dtype), jnp.int32(0)))
+                               (a, sc.empty_pairs(p.selfc), jnp.int32(0)))
     return sc.step_bound(p.selfc, seg, x, dx, a), seg
 
 

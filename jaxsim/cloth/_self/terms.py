@@ -130,7 +130,7 @@ def pairs(sc: SelfContact, x, dx=None) -> PairSet:
     return PairSet(pt2.a, ee2.a, pt2.on, ee2.on, pt.overflow | ee.overflow | pt2.overflow | ee2.overflow)
 
 
-def empty_pairs(sc: SelfContact, dtype=None) -> PairSet:
+def empty_pairs(sc: SelfContact) -> PairSet:
     """A :class:`PairSet` with no pairs, marked overflowing (a loop's first carry)."""
     P = sc.capacity
     z = jnp.zeros((P, 4), jnp.int32)
@@ -172,14 +172,22 @@ def _stand_in(X, on):
     return jnp.where(on[:, None, None], X, far)
 
 
+def _kinds(s: PairSet, x, free):
+    """``(kind, ids (P, 4), moves (P,), X (P, 4, 3))`` for the point–triangle (kind 0) and
+    edge–edge (1) pairs of ``s`` at ``x``: ``moves``, the slot holds a pair with a free
+    particle (a pair of pins only adds a constant); ``X``, its positions (a stand-in elsewhere)."""
+    for kind, ids, on in ((0, s.pt, s.pt_on), (1, s.ee, s.ee_on)):
+        moves = on & jnp.any(free[ids, 0] > 0, axis=1)
+        yield kind, ids, moves, _stand_in(x[ids], moves)
+
+
 def potential(sc: SelfContact, x, free) -> jax.Array:
     """The self-contact barrier (J) at positions ``x (N, 3)``; ``free (N, 1)`` (a pair of
     pinned particles only adds a constant, left out)."""
     s = current(sc, x)
     total = jnp.zeros((), x.dtype)
-    for kind, ids, on in ((0, s.pt, s.pt_on), (1, s.ee, s.ee_on)):
-        moves = on & jnp.any(free[ids, 0] > 0, axis=1)
-        e = _pair_energy(sc, kind, _stand_in(x[ids], moves), ids)
+    for kind, ids, moves, X in _kinds(s, x, free):
+        e = _pair_energy(sc, kind, X, ids)
         total = total + jnp.sum(jnp.where(moves, e, 0.0))
     return total
 
@@ -189,9 +197,8 @@ def force_magnitudes(sc: SelfContact, x, free) -> jax.Array:
     ``|w b'(d)|`` at its four particles (a bound: ``|grad d| <= 1`` per particle)."""
     s = current(sc, x)
     out = jnp.zeros(x.shape[:1], x.dtype)
-    for kind, ids, on in ((0, s.pt, s.pt_on), (1, s.ee, s.ee_on)):
-        moves = on & jnp.any(free[ids, 0] > 0, axis=1)
-        d, w = _pair_distance(sc, kind, _stand_in(x[ids], moves), ids)
+    for kind, ids, moves, X in _kinds(s, x, free):
+        d, w = _pair_distance(sc, kind, X, ids)
         f = jnp.where(moves, -w * barrier_slope(d, sc.dhat), 0.0)
         out = out.at[ids].add(jnp.broadcast_to(f[:, None], ids.shape))
     return out * free[:, 0]
@@ -242,9 +249,7 @@ def blocks(sc: SelfContact, x, free) -> PairBlocks:
     """The pairs' Hessian blocks at ``x (N, 3)`` (:class:`PairBlocks`)."""
     s = current(sc, x)
     ids_all, g_all, c_all = [], [], []
-    for kind, ids, on in ((0, s.pt, s.pt_on), (1, s.ee, s.ee_on)):
-        moves = on & jnp.any(free[ids, 0] > 0, axis=1)
-        X = _stand_in(x[ids], moves)
+    for kind, ids, moves, X in _kinds(s, x, free):
         (d, w), g = _pair_distance(sc, kind, X, ids), jax.grad(lambda Y: jnp.sum(_pair_distance(sc, kind, Y, ids)[0]))(X)
         b2 = _d(barrier, 2)(d, sc.dhat)
         c = jnp.where(moves, w * jnp.maximum(b2, 0.0), 0.0)
