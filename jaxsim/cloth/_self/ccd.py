@@ -20,6 +20,14 @@ SEPARATION = 0.1
 MAX_ITERS = 64
 
 
+def reach(dx, split: int):
+    """``(P,)`` ACCD's ``l_p``: a bound on how much a pair's distance can change over the
+    motion ``dx (P, 4, 3)`` (each primitive's largest vertex displacement, the pair's mean
+    displacement removed); vertices ``[:split]`` make the first primitive."""
+    n = length(dx - jnp.mean(dx, axis=1, keepdims=True))
+    return jnp.max(n[:, :split], axis=1) + jnp.max(n[:, split:], axis=1)
+
+
 def additive(x, dx, dist2, split: int, t_max=1.0):
     """``(P,)`` a safe fraction ``t <= t_max`` of the motion ``dx`` for each pair.
 
@@ -31,8 +39,7 @@ def additive(x, dx, dist2, split: int, t_max=1.0):
       t_max: ``()`` the fraction of ``dx`` that may be taken at most.
     """
     p = dx - jnp.mean(dx, axis=1, keepdims=True)
-    n = length(p)
-    lp = jnp.max(n[:, :split], axis=1) + jnp.max(n[:, split:], axis=1)
+    lp = reach(dx, split)
     moving = lp > 0
     lps = jnp.where(moving, lp, 1.0)
 

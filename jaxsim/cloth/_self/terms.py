@@ -19,7 +19,6 @@ import jax.numpy as jnp
 
 from ..._dataclass import pytree_dataclass, static_field
 from .._implicit.contact import _d, barrier, barrier_slope
-from .._vec import length
 from ..._fusion import materialized
 from . import broadphase as bp
 from . import ccd
@@ -89,13 +88,6 @@ def _boxes(ids, x, dx, pad):
     return lo - pad, hi + pad
 
 
-def _reach(x, dx, ids, split):
-    """ACCD's bound ``l_p`` on a pair's relative motion (``(P,)``; 0 without ``dx``)."""
-    p = dx[ids]
-    n = length(p - jnp.mean(p, axis=1, keepdims=True))
-    return jnp.max(n[:, :split], axis=1) + jnp.max(n[:, split:], axis=1)
-
-
 def _pt_dist2(x, ids):
     return point_triangle2(x[ids[:, 0]], x[ids[:, 1]], x[ids[:, 2]], x[ids[:, 3]])
 
@@ -123,8 +115,8 @@ def pairs(sc: SelfContact, x, dx=None) -> PairSet:
     pt_ids = jnp.concatenate([pt.a[:, None], F[pt.b]], axis=1)
     ee_ids = jnp.concatenate([E[ee.a], E[ee.b]], axis=1)
     # the narrow phase: only pairs whose distance can reach dhat on the motion
-    near_pt = jnp.sqrt(_pt_dist2(x, pt_ids)) - (0.0 if dx is None else _reach(x, dx, pt_ids, 1))
-    near_ee = jnp.sqrt(_ee_dist2(x, ee_ids)) - (0.0 if dx is None else _reach(x, dx, ee_ids, 2))
+    near_pt = jnp.sqrt(_pt_dist2(x, pt_ids)) - (0.0 if dx is None else ccd.reach(dx[pt_ids], 1))
+    near_ee = jnp.sqrt(_ee_dist2(x, ee_ids)) - (0.0 if dx is None else ccd.reach(dx[ee_ids], 2))
     pt2 = bp.compact(pt_ids, None, pt.on & (near_pt <= sc.dhat), cap)
     ee2 = bp.compact(ee_ids, None, ee.on & (near_ee <= sc.dhat), cap)
     return PairSet(pt2.a, ee2.a, pt2.on, ee2.on, pt.overflow | ee.overflow | pt2.overflow | ee2.overflow)
