@@ -209,3 +209,40 @@ def self_intersections(x, faces):
     apart = ~np.any(F[i][:, :, None] == F[j][:, None, :], axis=(1, 2))
     i, j = i[apart], j[apart]
     return int(np.sum(triangle_pairs_intersect(T[i], T[j]))) if i.size else 0
+
+
+def host_bisection(cloth, state, dt, depth, max_depth, plain, colliders=None, pins=None):
+    """Recursive bisection by plain steps (``plain``: no substeps) on the host, as
+    ``ImplicitEuler(max_substep_depth=max_depth)`` does it compiled:
+    ``(state, substeps, newton_iters, converged)``.
+
+    ``colliders``: ``(c0, c1)`` at the start and end of ``[0, dt]``; the scene's at the
+    end.  ``pins``: ``(p0, p1)``, the pinned particles' positions ``(K, 3)`` at the start
+    and end of ``[0, dt]`` (moving in a straight line), or ``None``.
+    """
+    scene = cloth if colliders is None else C.replace(cloth, colliders=colliders[1])
+    end = None if pins is None else pins[1]
+    if colliders is None:
+        new, info = C.step(scene, state, dt, plain, pins=end)
+    else:
+        new, info = C.rollout(C.replace(cloth, colliders=colliders[0]), state, dt, 1, plain,
+                              colliders=tuple(jax.tree_util.tree_map(lambda a: a[None], colliders[1])),
+                              pins=None if end is None else end[None])
+        new, info = C.State(new.x[0], new.v[0]), jax.tree_util.tree_map(lambda a: a[0], info)
+    iters = int(info.newton_iters)
+    if bool(info.converged) or depth == max_depth:
+        return new, 1, iters, bool(info.converged)
+    mid = None if colliders is None else halfway(*colliders)
+    pmid = None if pins is None else (np.asarray(pins[0]) + np.asarray(pins[1])) / 2
+    s1, n1, i1, c1 = host_bisection(cloth, state, dt / 2, depth + 1, max_depth, plain,
+                                    None if colliders is None else (colliders[0], mid),
+                                    None if pins is None else (pins[0], pmid))
+    s2, n2, i2, c2 = host_bisection(cloth, s1, dt / 2, depth + 1, max_depth, plain,
+                                    None if colliders is None else (mid, colliders[1]),
+                                    None if pins is None else (pmid, pins[1]))
+    return s2, n1 + n2, iters + i1 + i2, c1 and c2
+
+
+def halfway(c0, c1):
+    """Colliders halfway between two poses of one structure."""
+    return tuple(jax.tree_util.tree_map(lambda a, b: (a + b) / 2, c0, c1))

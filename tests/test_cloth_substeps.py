@@ -12,6 +12,7 @@ import pytest
 from jax.test_util import check_grads
 
 from jaxsim import cloth as C
+from _helpers import host_bisection
 
 jax.config.update("jax_enable_x64", True)
 
@@ -25,39 +26,12 @@ SUB = C.ImplicitEuler(newton_iters=4, extrapolate=0, max_substep_depth=3)
 PLAIN = dataclasses.replace(SUB, max_substep_depth=0)
 
 
-def host_bisection(cloth, state, dt, depth, max_depth, plain=PLAIN, colliders=None):
-    """Recursive bisection by plain steps on the host: ``(state, substeps, newton_iters, converged)``.
-
-    ``colliders``: ``(c0, c1)`` at the start and end of ``[0, dt]``; the scene's at the end.
-    """
-    scene = cloth if colliders is None else C.replace(cloth, colliders=colliders[1])
-    if colliders is None:
-        new, info = C.step(scene, state, dt, plain)
-    else:
-        new, info = C.rollout(C.replace(cloth, colliders=colliders[0]), state, dt, 1, plain,
-                              colliders=tuple(jax.tree_util.tree_map(lambda a: a[None], colliders[1])))
-        new, info = C.State(new.x[0], new.v[0]), jax.tree_util.tree_map(lambda a: a[0], info)
-    iters = int(info.newton_iters)
-    if bool(info.converged) or depth == max_depth:
-        return new, 1, iters, bool(info.converged)
-    mid = None if colliders is None else halfway(*colliders)
-    s1, n1, i1, c1 = host_bisection(cloth, state, dt / 2, depth + 1, max_depth, plain,
-                                    None if colliders is None else (colliders[0], mid))
-    s2, n2, i2, c2 = host_bisection(cloth, s1, dt / 2, depth + 1, max_depth, plain,
-                                    None if colliders is None else (mid, colliders[1]))
-    return s2, n1 + n2, iters + i1 + i2, c1 and c2
-
-
-def halfway(c0, c1):
-    return tuple(jax.tree_util.tree_map(lambda a, b: (a + b) / 2, c0, c1))
-
-
 def test_substeps_equal_the_host_recursion_of_halved_steps():
     states, infos = C.rollout(SCENE, C.State.at_rest(SCENE), DT, 6, SUB)
     s = C.State.at_rest(SCENE)
     counts = []
     for t in range(6):
-        s, n, iters, conv = host_bisection(SCENE, s, DT, 0, SUB.max_substep_depth)
+        s, n, iters, conv = host_bisection(SCENE, s, DT, 0, SUB.max_substep_depth, PLAIN)
         counts.append(n)
         np.testing.assert_allclose(states.x[t], s.x, rtol=0, atol=1e-12)
         np.testing.assert_allclose(states.v[t], s.v, rtol=0, atol=1e-10)

@@ -19,7 +19,7 @@ from ._model.colliders import SCENE_FIELDS, collider_kinds, count_inside, descri
 from ._integrators import BDF2, ExplicitEuler, ImplicitEuler
 from ._layout import batch_layout
 from ._model.scene import Cloth, State, frozen_ids
-from ._checks import check_inputs, check_resume
+from ._checks import check_inputs, check_pins, check_resume
 from ._step import _rollout
 
 
@@ -77,12 +77,14 @@ _CONTACT = ("colliders", "contact_gap", "contact_stiffness")
 _SELF = ("contact_faces", "contact_edges")
 
 
-@functools.partial(jax.jit, static_argnames=("n_steps", "integrator", "checkpoint", "state_batched", "layout_batched"))
-def _batched(scenes, layout, state, dt, n_steps, integrator, checkpoint, state_batched, layout_batched, resume=None):
+@functools.partial(jax.jit, static_argnames=("n_steps", "integrator", "checkpoint", "state_batched", "layout_batched",
+                                             "pins_batched"))
+def _batched(scenes, layout, state, dt, n_steps, integrator, checkpoint, state_batched, layout_batched, resume=None,
+             pins=None, pins_batched=False):
     run = functools.partial(_rollout, dt=dt, n_steps=n_steps, integrator=integrator, checkpoint=checkpoint)
-    return jax.vmap(lambda c, lay, s, r: run(c, lay, s, resume=r),
-                    in_axes=(0, 0 if layout_batched else None, 0 if state_batched else None, 0))(
-                        scenes, layout, state, resume)
+    return jax.vmap(lambda c, lay, s, r, p: run(c, lay, s, resume=r, pins=p),
+                    in_axes=(0, 0 if layout_batched else None, 0 if state_batched else None, 0,
+                             0 if pins_batched else None))(scenes, layout, state, resume, pins)
 
 
 def check_batched(scenes: Cloth) -> None:
@@ -146,7 +148,7 @@ def check_outside(scenes: Cloth, x, what: str) -> None:
 
 
 def batch_rollout(scenes, state: State, dt, n_steps: int, integrator=ImplicitEuler(), *,
-                  sharded: bool | None = None, checkpoint: bool = False, resume=None):
+                  sharded: bool | None = None, checkpoint: bool = False, resume=None, pins=None):
     """``rollout`` for ``B`` parameter sets at once.
 
     Args:
@@ -159,6 +161,8 @@ def batch_rollout(scenes, state: State, dt, n_steps: int, integrator=ImplicitEul
       resume: the previous ``batch_rollout``'s ``(states, infos)`` (leading ``(B, T)``
         axes), ``state`` normally its last states: each scene's extrapolated start goes on
         from its velocities, as ``rollout``'s ``resume`` does.
+      pins: moving pins as for ``rollout``: ``(n_steps, K, 3)`` for every scene, or
+        ``(B, n_steps, K, 3)`` per scene (every scene with ``K`` pinned particles).
 
     Returns:
       ``(states, infos)`` with leading ``(B, n_steps)`` axes.
@@ -195,6 +199,8 @@ def batch_rollout(scenes, state: State, dt, n_steps: int, integrator=ImplicitEul
     n_steps = check_int("n_steps", n_steps, 1)
     checkpoint = check_bool("checkpoint", checkpoint)
     resume = check_resume(scenes, resume, batch=B, bdf2=isinstance(integrator, BDF2))
+    pins_batched = pins is not None and np.ndim(pins) == 4
+    pins = check_pins(scenes, pins, ((B,) if pins_batched else ()) + (n_steps,), integrator)
     mesh = _sharding.batch_mesh(sharded, B)
     pad = 0
     if mesh is not None:
@@ -207,6 +213,8 @@ def batch_rollout(scenes, state: State, dt, n_steps: int, integrator=ImplicitEul
             state, _ = _sharding.shard_leading(state, mesh, B)
         if resume is not None:
             resume, _ = _sharding.shard_leading(resume, mesh, B)
+        if pins_batched:
+            pins, _ = _sharding.shard_leading(pins, mesh, B)
     out = _batched(scenes, layout, state, jnp.asarray(dt, scenes.dtype), n_steps, integrator, bool(checkpoint),
-                   state_batched, layout_batched, resume)
+                   state_batched, layout_batched, resume, pins, pins_batched)
     return _sharding.unpad(out, pad)

@@ -111,6 +111,37 @@ def check_path(cloth: Cloth, colliders, n_steps: int):
     return jax.tree_util.tree_unflatten(want, leaves)
 
 
+def check_pins(cloth: Cloth, pins, lead: tuple, integrator):
+    """Moving pins: ``pins`` of shape ``lead + (K, 3)``, ``K`` the scene's pinned particles
+    (in the order of ``jnp.flatnonzero(cloth.pinned)``), finite, in the scene's dtype; or
+    ``None``."""
+    if pins is None:
+        return None
+    if isinstance(integrator, ExplicitEuler):
+        raise ValueError("pins= needs ImplicitEuler or BDF2: explicit Euler's pins stay where they are")
+    pinned = cloth.pinned
+    K = int(np.sum(np.asarray(pinned), axis=-1).max()) if is_concrete(pinned) else None
+    if K == 0:
+        raise ValueError("pins= moves the scene's pinned particles, and this scene has none (pin them with "
+                         "grid(..., pins=), from_mesh(..., pins=) or replace(scene, pinned=))")
+    if is_concrete(pinned) and np.ndim(pinned) == 2:
+        counts = np.sum(np.asarray(pinned), axis=-1)
+        if np.any(counts != K):
+            raise ValueError(f"pins= needs the same number of pinned particles in every scene, got {counts.tolist()}")
+    shape = tuple(jnp.shape(pins))
+    want = lead + (K, 3)
+    if len(shape) != len(want) or any(w is not None and w != g for w, g in zip(want, shape)):
+        names = ", ".join(str(d) for d in lead + ("K" if K is None else K, 3))
+        raise ValueError(f"pins must have shape ({names}): the positions of the scene's {K} pinned particles "
+                         f"(in the order of jnp.flatnonzero(scene.pinned)) at the end of each step, got {shape}")
+    if is_concrete(pins):
+        a = np.asarray(pins)
+        if not np.issubdtype(a.dtype, np.number) or np.iscomplexobj(a):
+            raise ValueError(f"pins must hold real numbers, got dtype {a.dtype}")
+        check_finite("pins", a)
+    return jnp.asarray(pins, cloth.dtype)
+
+
 def check_resume(cloth: Cloth, resume, batch: int | None = None, bdf2: bool = False):
     """The :class:`_implicit.resume.Resume` of a previous rollout's ``(states, infos)``,
     or ``None``.  ``batch``: ``B``, a previous ``batch_rollout``'s outputs (every shape

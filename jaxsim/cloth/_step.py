@@ -10,7 +10,7 @@ import jax.numpy as jnp
 from jax import lax
 
 from .._validate import check_bool, check_int
-from ._checks import check_inputs, check_path, check_resume, particle_array, valid_inputs
+from ._checks import check_inputs, check_path, check_pins, check_resume, particle_array, valid_inputs
 from ._explicit import explicit
 from ._implicit.bdf2 import Before
 from ._implicit.extrapolate import History
@@ -31,12 +31,21 @@ def _explicit(cloth: Cloth, state: State, dt, integ: ExplicitEuler, layout: Layo
     return State(jnp.where(valid, new.x, state.x), jnp.where(valid, new.v, state.v)), info
 
 
+def pin_targets(cloth: Cloth, x, pins):
+    """``(N, 3)`` ``x`` with the pinned rows set to ``pins (K, 3)`` (in the order of
+    ``jnp.flatnonzero(cloth.pinned)``); ``None`` when ``pins`` is."""
+    if pins is None:
+        return None
+    return x.at[jnp.flatnonzero(cloth.pinned, size=pins.shape[0])].set(pins)
+
+
 @functools.partial(jax.jit, static_argnames=("integrator",))
-def _step(cloth, layout, state, dt, integrator, prev=None, guess=None, history=None, before=None):
+def _step(cloth, layout, state, dt, integrator, prev=None, guess=None, history=None, before=None, pins=None):
     """``(State, StepInfo, Before | None)``: one step on ``cloth`` with its ``layout``
     (``_layout.layout_of``); an implicit one may start Newton from ``guess`` (end-of-step
     positions, ``(N, 3)``) or from the extrapolation of a :class:`History`; ``before``:
-    BDF2's memory (``_implicit.bdf2.Before``; ``None`` otherwise)."""
+    BDF2's memory (``_implicit.bdf2.Before``; ``None`` otherwise); ``pins``: ``(K, 3)``
+    the pinned particles' positions at the end of the step, or ``None``."""
     if isinstance(integrator, ExplicitEuler):
         return (*_explicit(cloth, state, dt, integrator, layout), None)
     start, tight = None, False
@@ -46,10 +55,10 @@ def _step(cloth, layout, state, dt, integrator, prev=None, guess=None, history=N
         start, tight = history.start, history.jerk
         if before is not None:  # BDF2's problem is not built on (x^n, v^n, h)
             start = lambda p: history.start_at(p, state.v)  # noqa: E731
-    return implicit(cloth, state, dt, integrator, prev, start, tight, layout, before)
+    return implicit(cloth, state, dt, integrator, prev, start, tight, layout, before, pin_targets(cloth, state.x, pins))
 
 def step(cloth: Cloth, state: State, dt, integrator=ImplicitEuler(), guess=None,
-         previous: State | None = None) -> tuple[State, StepInfo]:
+         previous: State | None = None, pins=None) -> tuple[State, StepInfo]:
     """Advance ``state`` by ``dt`` seconds.
 
     Args:
@@ -64,10 +73,14 @@ def step(cloth: Cloth, state: State, dt, integrator=ImplicitEuler(), guess=None,
         ``guess=state.x + dt * (2 * state.v - previous.v)`` does the same.
       previous: ``BDF2`` only: the state ``dt`` before ``state``, or ``None`` (the step is
         then backward Euler, as a rollout's first).
+      pins: ``(K, 3)`` where the scene's ``K`` pinned particles (in the order of
+        ``jnp.flatnonzero(cloth.pinned)``) are at the end of the step (m), or ``None``.
+        They move there in a straight line over the step (``ImplicitEuler`` or ``BDF2``).
 
     Returns:
       ``(new_state, StepInfo)`` in the scene's dtype (the state is cast to it).  Pinned
-      particles keep their positions exactly.
+      particles keep their positions exactly, or end exactly on ``pins`` with the velocity
+      of the step's motion there (``(pins - x) / dt`` for backward Euler).
 
     On Linux, call ``jaxsim.retain_host_memory()`` once when stepping large cloths one
     step per call: a float64 128x128 grid's step then stops faulting its 56 MB of scratch
@@ -87,23 +100,25 @@ def step(cloth: Cloth, state: State, dt, integrator=ImplicitEuler(), guess=None,
         before = Before(px, particle_array("previous.v", previous.v, cloth), dt)
     elif isinstance(integrator, BDF2):
         before = Before.none(state.x, state.v)
+    pins = check_pins(cloth, pins, (), integrator)
     new, info, _ = _step(cloth, layout_of(cloth.springs, cloth.rest), state, dt, integrator, guess=guess,
-                         before=before)
+                         before=before, pins=pins)
     return new, info
 
 
 @functools.partial(jax.jit, static_argnames=("n_steps", "integrator", "checkpoint"))
-def _rollout(cloth, layout, state, dt, n_steps, integrator, checkpoint=False, path=None, resume=None):
+def _rollout(cloth, layout, state, dt, n_steps, integrator, checkpoint=False, path=None, resume=None, pins=None):
     extrapolate = (isinstance(integrator, ImplicitEuler) and integrator.extrapolate and not cloth.colliders
                    and not cloth.self_contact)
 
-    def f(carry, cols):
+    def f(carry, xs):
+        cols, pin = xs
         s, prev, history, before = carry  # history: None unless extrapolating; before: BDF2's
         if cols is None:
-            s2, info, before = _step(cloth, layout, s, dt, integrator, history=history, before=before)
+            s2, info, before = _step(cloth, layout, s, dt, integrator, history=history, before=before, pins=pin)
         else:  # a collider path: no extrapolation (colliders)
             s2, info, before = _step(dataclasses.replace(cloth, colliders=cols), layout, s, dt, integrator, prev,
-                                     before=before)
+                                     before=before, pins=pin)
         history = None if history is None else history.advance(s.v, info, integrator.extrapolate)
         return (s2, cols if cols is not None else prev, history, before), (s2, info)
 
@@ -114,11 +129,11 @@ def _rollout(cloth, layout, state, dt, n_steps, integrator, checkpoint=False, pa
     before = None
     if isinstance(integrator, BDF2):
         before = Before.none(state.x, state.v) if resume is None else resume.before(state.x, state.v, dt)
-    _, (states, infos) = lax.scan(f, (state, prev0, history, before), path, length=n_steps)
+    _, (states, infos) = lax.scan(f, (state, prev0, history, before), (path, pins), length=n_steps)
     return states, infos
 
 def rollout(cloth: Cloth, state: State, dt, n_steps: int, integrator=ImplicitEuler(),
-            checkpoint: bool = False, colliders=None, resume=None) -> tuple[State, StepInfo]:
+            checkpoint: bool = False, colliders=None, resume=None, pins=None) -> tuple[State, StepInfo]:
     """``n_steps`` steps in one ``lax.scan``.
 
     Differentiable end to end: implicit steps carry implicit-function derivatives (one
@@ -153,6 +168,12 @@ def rollout(cloth: Cloth, state: State, dt, n_steps: int, integrator=ImplicitEul
         that step was taken whole, so chunks equal one long rollout; after a last step
         taken in substeps (or a one-step rollout) the first step is backward Euler
         (``_implicit.resume.Resume.before``).
+      pins: ``(n_steps, K, 3)`` moving pins, or ``None``: entry ``t`` is where the scene's
+        ``K`` pinned particles (in the order of ``jnp.flatnonzero(cloth.pinned)``) are at the
+        end of step ``t`` (m).  They move on straight lines within a step (substeps
+        included) and end each step exactly on the path; the free particles are solved with
+        them as boundary conditions, and derivatives flow to the path (``ImplicitEuler`` or
+        ``BDF2``; ``anim.bone_points`` gives such paths from a clip).
 
     Returns:
       ``(states, infos)`` stacked over a leading ``(n_steps,)`` axis (``states.x`` is
@@ -162,6 +183,7 @@ def rollout(cloth: Cloth, state: State, dt, n_steps: int, integrator=ImplicitEul
     n_steps = check_int("n_steps", n_steps, 1)
     path = check_path(cloth, colliders, n_steps)
     resume = check_resume(cloth, resume, bdf2=isinstance(integrator, BDF2))
+    pins = check_pins(cloth, pins, (n_steps,), integrator)
     layout = layout_of(cloth.springs, cloth.rest)
     return _rollout(cloth, layout, state, jnp.asarray(dt, cloth.dtype), n_steps, integrator,
-                    check_bool("checkpoint", checkpoint), path, resume)
+                    check_bool("checkpoint", checkpoint), path, resume, pins)

@@ -81,10 +81,11 @@ def base(x, v, before: Before, h):
     return x + b * (x - before.x), v + b * (v - before.v), beta * h
 
 
-def step_problem(cloth, x, v, h, prev, layout, before: Before | None) -> pr.StepProblem:
+def step_problem(cloth, x, v, h, prev, layout, before: Before | None, pins=None) -> pr.StepProblem:
     """The problem of a (sub)step of ``h`` from ``(x, v)``: backward Euler's, or BDF2's with
-    its memory ``before`` (contact terms from the step's own start, module doc)."""
+    its memory ``before`` (contact terms from the step's own start, module doc); ``pins``:
+    ``(N, 3)`` the pinned particles' positions at its end, or ``None`` (they stay)."""
     if before is None:
-        return pr.StepProblem.build(cloth, x, v, h, prev, layout)
+        return pr.StepProblem.build(cloth, x, v, h, prev, layout, pins=pins)
     xb, vb, hb = base(x, v, before, h)
-    return pr.StepProblem.build(cloth, xb, vb, hb, prev, layout, start=(x, h))
+    return pr.StepProblem.build(cloth, xb, vb, hb, prev, layout, start=(x, h), pins=pins)

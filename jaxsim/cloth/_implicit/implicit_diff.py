@@ -23,13 +23,14 @@ from .._linear import Cholesky
 
 def stationarity(w, p: pr.StepProblem):
     """Root function in the free unknowns ``w (N, 3)``; a pinned particle's entry is
-    ``w + y`` (its displacement, 0 at the solution; ``y`` is ``StepProblem.prediction``).
+    ``w - w_pin`` (``StepProblem.pinned_at``: ``-y`` for a pin that stays, ``y`` being
+    ``StepProblem.prediction``), 0 at the solution.
 
     ``F(w) = P grad g(P w - (1 - P) y) + (1 - P) (w + y)``: its Jacobian
     ``P H P + (1 - P)`` is symmetric.
     """
     free = p.free > 0
-    pinned_at = -p.prediction  # a pin's displacement is 0
+    pinned_at = p.pinned_at
     return jnp.where(free, jax.grad(pr.incremental_potential)(jnp.where(free, w, pinned_at), p), w - pinned_at)
 
 

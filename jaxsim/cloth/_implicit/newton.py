@@ -181,8 +181,13 @@ def initial_state(sv: NewtonSetup, rtol, start=None, tight_first=False) -> Newto
     else:
         wg = jnp.where(free > 0, start, w0)
         eg = sv.evaluate(wg)
-        better = eg.g < pr.start_objective(p)
-        w0, e0 = lax.cond(better, lambda: (wg, eg), lambda: (w0, sv.evaluate(w0)))
+        if p.pin_to is None:
+            better = eg.g < pr.start_objective(p)
+            w0, e0 = lax.cond(better, lambda: (wg, eg), lambda: (w0, sv.evaluate(w0)))
+        else:  # moved pins stretch their springs at the lab's start: no shortcut for its g
+            e_lab = sv.evaluate(w0)
+            better = eg.g < e_lab.g
+            w0, e0 = jax.tree_util.tree_map(lambda a, b: jnp.where(better, a, b), (wg, eg), (w0, e_lab))
         cg0 = jnp.where(better, 0.0, h * p.v0 * free)
         tight = better & tight_first
     z = jnp.zeros((), sv.dtype)

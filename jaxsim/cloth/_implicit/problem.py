@@ -62,6 +62,8 @@ class StepProblem:
         without colliders.
       selfc: the self-contact data (``_self.terms.SelfContact``), ``None`` unless
         ``Cloth.self_contact``.
+      pin_to: ``(N, 3)`` where the pinned particles are at the end of the step (m; other
+        rows unused), or ``None``: pins stay at ``x^n``.
     """
 
     cloth: Cloth
@@ -76,10 +78,11 @@ class StepProblem:
     e0: jax.Array | None
     contact: ct.ContactTerms | None = None
     selfc: sc.SelfContact | None = None
+    pin_to: jax.Array | None = None
 
     @staticmethod
     def build(cloth: Cloth, x0, v0, h, prev_colliders=None, layout: Layout | None = None,
-              start=None) -> "StepProblem":
+              start=None, pins=None) -> "StepProblem":
         """Derive the per-step terms (differentiable in every input).
 
         ``prev_colliders``: the colliders at the start of the step when they move (the
@@ -87,7 +90,9 @@ class StepProblem:
         (``_layout.layout_of``, built here when ``None``).  ``start``: ``(x^n (N, 3),
         step ())`` where the problem is not built on the step's own start and length
         (BDF2's, ``_implicit.bdf2.step_problem``): the contact terms are those of the
-        step from ``x^n`` over ``step`` seconds (``_implicit.contact.build``)."""
+        step from ``x^n`` over ``step`` seconds (``_implicit.contact.build``).  ``pins``:
+        ``(N, 3)`` the pinned particles' positions at the end of the step (moving pins;
+        other rows unused), or ``None``."""
         layout = layout_of(cloth.springs, cloth.rest) if layout is None else layout
         if not cloth.damped:
             cloth = dataclasses.replace(cloth, damping=jnp.zeros((), x0.dtype))
@@ -106,7 +111,7 @@ class StepProblem:
             kappa = ct.default_stiffness(cloth, h) if cloth.contact_stiffness is None else cloth.contact_stiffness
             selfc = sc.build(cloth, kappa)
         return StepProblem(cloth, layout, x0, v0, h, d0, l0, l0 - cloth.rest_length,
-                           h * layout.diff(cloth.springs, v0), e0, contact, selfc)
+                           h * layout.diff(cloth.springs, v0), e0, contact, selfc, pins)
 
     @property
     def touches(self) -> bool:
@@ -134,7 +139,18 @@ class StepProblem:
         """``(N, 3)`` Newton's first iterate ``w``: the displacement 0 (the lab's linearisation
         point), or the push-out off a moving collider."""
         u = jnp.zeros_like(self.x0) if self.contact is None else self.contact.start
-        return u - self.prediction
+        if self.pin_to is None:
+            return u - self.prediction
+        return jnp.where(self.free > 0, u - self.prediction, self.pinned_at)
+
+    @property
+    def pinned_at(self) -> jax.Array:
+        """``(N, 3)`` the deviation ``w`` that puts the pinned particles where they are at the
+        end of the step: ``-y`` (they stay at ``x^n``), or ``pin_to - x^n - y`` (moving pins);
+        read on pinned rows only."""
+        if self.pin_to is None:
+            return -self.prediction
+        return (self.pin_to - self.x0) - self.prediction
 
     @property
     def prediction(self) -> jax.Array:

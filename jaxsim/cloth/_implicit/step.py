@@ -20,24 +20,26 @@ from .newton import newton
 
 
 def implicit(cloth: Cloth, state: State, dt, integ: ImplicitEuler, prev=None, start=None, tight=False,
-             layout: Layout | None = None, before: bdf2.Before | None = None):
+             layout: Layout | None = None, before: bdf2.Before | None = None, pins=None):
     """``(State, StepInfo, Before | None)`` after one step of ``dt`` from ``state``.
 
     ``prev``: the colliders at the start of the step when they move; ``start``: Newton's
     first iterate as a function of the step's problem (``p -> w``), or ``None``;
     ``tight``: its ``tight_first``; ``before``: BDF2's memory (``_implicit.bdf2``), ``None``
-    for backward Euler, and the memory for the next step is returned (``None`` likewise).
+    for backward Euler, and the memory for the next step is returned (``None`` likewise);
+    ``pins``: ``(N, 3)`` the pinned particles' positions at the end of the step (other
+    rows unused), or ``None``: they stay.
     """
     if not integ.max_substep_depth:
-        return _whole(cloth, state, dt, integ, prev, start, tight, layout, before)
-    return _substepped(cloth, state, dt, integ, prev, start, tight, layout, before)
+        return _whole(cloth, state, dt, integ, prev, start, tight, layout, before, pins)
+    return _substepped(cloth, state, dt, integ, prev, start, tight, layout, before, pins)
 
 
-def _whole(cloth: Cloth, state: State, dt, integ: ImplicitEuler, prev, start, tight, layout, before):
+def _whole(cloth: Cloth, state: State, dt, integ: ImplicitEuler, prev, start, tight, layout, before, pins):
     """:func:`implicit` on the whole step."""
     x0, v0, h = state.x, state.v, dt
     valid = valid_inputs(cloth, dt)
-    p = bdf2.step_problem(cloth, x0, v0, h, prev, layout, before)
+    p = bdf2.step_problem(cloth, x0, v0, h, prev, layout, before, pins)
     rtol = integ.resolved_rtol(x0.dtype)
     p_const = jax.tree_util.tree_map(lax.stop_gradient, p)
     if start is not None and not p.touches:  # contact starts from x^n or its push-out
@@ -58,7 +60,7 @@ def _whole(cloth: Cloth, state: State, dt, integ: ImplicitEuler, prev, start, ti
     return State(x, v), info, None if before is None else before.after(x0, v0, h, ok)
 
 
-def _substepped(cloth: Cloth, state: State, dt, integ: ImplicitEuler, prev, start, tight, layout, before):
+def _substepped(cloth: Cloth, state: State, dt, integ: ImplicitEuler, prev, start, tight, layout, before, pins):
     """:func:`implicit` with adaptive substeps (``_implicit.substeps``): the whole step is
     the search's first attempt."""
     x0, v0 = state.x, state.v
@@ -70,8 +72,8 @@ def _substepped(cloth: Cloth, state: State, dt, integ: ImplicitEuler, prev, star
         start_fn = start
         start = lambda p: lax.stop_gradient(start_fn(p))  # noqa: E731
     found = sb.search(scene, const(x0), const(v0), const(dt), integ, integ.resolved_rtol(x0.dtype),
-                      const(prev), layout, start, tight, const(before))
-    x, v, last = sb.replay(cloth, x0, v0, dt, integ, prev, layout, found, before)
+                      const(prev), layout, start, tight, const(before), const(pins))
+    x, v, last = sb.replay(cloth, x0, v0, dt, integ, prev, layout, found, before, pins)
     ok = valid & ~found.failed & bounded(cloth, x, v)
     t = found.totals
     info = StepInfo(newton_iters=t.newton_iters, cg_iters=t.cg_iters, grad_norm=t.grad_norm, rel_grad=t.rel_grad,

@@ -62,10 +62,24 @@ def substep_scene(cloth, prev, pos, size, D):
     return dataclasses.replace(cloth, colliders=c1), c0
 
 
+def pins_at(x0, pins, pos, size, D):
+    """``(N, 3)`` the pins' positions at the end of the substep ``[pos, pos + size)`` (units
+    of ``h / 2^D``) of a step from ``x0`` to ``pins``, moving linearly (exactly ``pins`` at
+    the step's end); ``None`` where the pins stay."""
+    if pins is None:
+        return None
+    t = ((pos + size) / 2**D).astype(x0.dtype)
+    return jnp.where(pos + size >= 2**D, pins, x0 + t * (pins - x0))
+
+
 def advance(p: pr.StepProblem, w):
-    """``(x, v)`` at the end of the step ``p`` with deviation ``w (N, 3)``; pins stay put."""
+    """``(x, v)`` at the end of the step ``p`` with deviation ``w (N, 3)``; pins stay put, or
+    end exactly on ``p.pin_to`` with the velocity of the step's motion there."""
     free = p.free > 0
-    return p.x0 + jnp.where(free, p.displacement(w), 0.0), jnp.where(free, p.velocity(w), 0.0)
+    if p.pin_to is None:
+        return p.x0 + jnp.where(free, p.displacement(w), 0.0), jnp.where(free, p.velocity(w), 0.0)
+    x = jnp.where(free, p.x0 + p.displacement(w), p.pin_to)
+    return x, jnp.where(free, p.velocity(w), (p.pin_to - p.x0) / p.h)
 
 
 @pytree_dataclass
@@ -138,12 +152,13 @@ def _acceleration(w, p, x, v, h, g, euler: bool):
     return ((p.x0 - x) + (p.h * p.v0 - h * v) + w) / h**2 + (p.h / h)**2 * g
 
 
-def search(cloth, x0, v0, h, integ, rtol, prev, layout, start, tight, before):
+def search(cloth, x0, v0, h, integ, rtol, prev, layout, start, tight, before, pins=None):
     """Find the substeps (on ``stop_gradient`` inputs): the final :class:`SubstepLoop`.
 
     ``start``: the first attempt's Newton start (``p -> w``, the step's extrapolation), or
     ``None`` (every attempt starts from the lab's ``x^n``); ``tight``: its ``tight_first``;
-    ``before``: BDF2's memory at the step's start, ``None`` for backward Euler.  The first
+    ``before``: BDF2's memory at the step's start, ``None`` for backward Euler; ``pins``:
+    ``(N, 3)`` the pinned particles' positions at the step's end, or ``None``.  The first
     attempt is the whole step (level 0); a step that converges makes no other.
     """
     D = integ.max_substep_depth
@@ -154,7 +169,7 @@ def search(cloth, x0, v0, h, integ, rtol, prev, layout, start, tight, before):
         size = jnp.left_shift(1, D - c.level)
         hk = h * (size.astype(dtype) / 2**D)
         ck, pk = substep_scene(cloth, prev, c.pos, size, D)
-        p = bdf2.step_problem(ck, c.x, c.v, hk, pk, layout, c.before)
+        p = bdf2.step_problem(ck, c.x, c.v, hk, pk, layout, c.before, pins_at(x0, pins, c.pos, size, D))
         w0, accel = None, c.accel
         if start is not None and not p.touches:
             if before is None:
@@ -205,7 +220,7 @@ def search(cloth, x0, v0, h, integ, rtol, prev, layout, start, tight, before):
     return lax.while_loop(lambda c: (c.pos < 2**D) & ~c.failed & (c.tries < 2 ** (D + 1)), attempt, c0)
 
 
-def replay(cloth, x0, v0, h, integ, prev, layout, found: SubstepLoop, before=None):
+def replay(cloth, x0, v0, h, integ, prev, layout, found: SubstepLoop, before=None, pins=None):
     """``(x, v, before)`` after the accepted substeps of ``found``, rebuilt from the
     (differentiable) inputs, each through ``implicit_diff.solution``; ``before``: BDF2's
     memory at the step's start and, returned, at its last substep (``None``: backward Euler)."""
@@ -218,7 +233,7 @@ def replay(cloth, x0, v0, h, integ, prev, layout, found: SubstepLoop, before=Non
         size = jnp.left_shift(1, D - level)
         hk = h * (size.astype(x.dtype) / 2**D)
         ck, pk = substep_scene(cloth, prev, pos, size, D)
-        p = bdf2.step_problem(ck, x, v, hk, pk, layout, mem)
+        p = bdf2.step_problem(ck, x, v, hk, pk, layout, mem, pins_at(x0, pins, pos, size, D))
         x1, v1 = advance(p, solution(integ, w, p))
         return x1, v1, pos + size, None if mem is None else bdf2.Before(x, v, hk)
 
