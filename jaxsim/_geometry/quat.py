@@ -228,3 +228,18 @@ def clamp_angle(q, max_angle):
     half = 0.5 * jnp.minimum(ang, max_angle)
     limited = (jnp.cos(half), *scale(jnp.sin(half), axis))
     return where(ang > max_angle, limited, q)
+
+
+def slerp(a, b, t):
+    """Spherical linear interpolation from unit ``a`` (``t = 0``) to unit ``b`` (``t = 1``),
+    the short way (Shoemake 1985).  The angle is ``2 atan2(|a - b|, |a + b|)``, accurate at
+    every size, and near zero the weights ``(1 - t, t)`` and a renormalisation take over
+    (NaN-free in value and gradient)."""
+    b = where(dot(a[1:], b[1:]) + a[0] * b[0] < 0, scale(-1.0, b), b)
+    phi = 2.0 * jnp.arctan2(safe_norm(sub(a, b)), safe_norm(add(a, b)))
+    small = phi < 1e-4
+    s = jnp.sin(jnp.where(small, 1.0, phi))
+    wa = jnp.where(small, 1.0 - t, jnp.sin((1.0 - t) * jnp.where(small, 1.0, phi)) / s)
+    wb = jnp.where(small, t, jnp.sin(t * jnp.where(small, 1.0, phi)) / s)
+    out = add(scale(wa, a), scale(wb, b))
+    return where(small, renormalize(out), out)
