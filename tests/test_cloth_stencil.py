@@ -258,7 +258,7 @@ def test_the_scene_holds_physics_and_the_layout_is_derived_apart():
     fields = {f.name for f in dataclasses.fields(C.Cloth)}
     assert fields == {"rest", "springs", "rest_length", "stiffness", "mass", "pinned", "gravity", "damping", "damped",
                       "colliders", "contact_gap", "contact_stiffness", "contact_faces", "contact_edges", "self_contact",
-                      "self_contact_pairs"}
+                      "self_contact_pairs", "wind", "drag", "lift", "aero"}
     lab, again = C.lab_cloth(dtype=np.float64), C.lab_cloth(dtype=np.float64)
     assert layout_of(lab.springs, lab.rest) == layout_of(again.springs, again.rest)  # found by content
     assert isinstance(layout_of(lab.springs, lab.rest), PlanarLayout)

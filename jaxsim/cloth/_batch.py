@@ -46,6 +46,9 @@ def stack_scenes(scenes: Sequence[Cloth]) -> Cloth:
                              "order and friction on/off (their values may differ)")
         if (s.contact_stiffness is None) != (first.contact_stiffness is None):
             raise ValueError("scenes differ in whether contact_stiffness is set; set it on all or none")
+        if s.aero != first.aero:
+            raise ValueError(f"scenes[{k}] differs from scenes[0] in whether drag or lift act (aero); batched scenes "
+                             "need the same")
         if (s.self_contact, s.self_contact_pairs, np.shape(s.contact_faces)) != (
                 first.self_contact, first.self_contact_pairs, np.shape(first.contact_faces)):
             raise ValueError(f"scenes[{k}] differs from scenes[0] in self_contact, self_contact_pairs or the number "
@@ -53,6 +56,10 @@ def stack_scenes(scenes: Sequence[Cloth]) -> Cloth:
     leaves = {f: jnp.stack([getattr(s, f) for s in scenes]) for f in _LEAVES if f != "springs"}
     leaves["springs"] = frozen_ids(np.stack([s.springs for s in scenes]))  # a topology: concrete under jit too
     leaves.update(_stack_contact(scenes))
+    if first.wind is not None:
+        for f in _AERO:
+            leaves[f] = jnp.stack([jnp.zeros(np.shape(getattr(first, f)), first.dtype) if getattr(s, f) is None
+                                   else getattr(s, f) for s in scenes])
     if first.contact_faces is not None:  # topologies, as the springs
         for f in _SELF:
             leaves[f] = frozen_ids(np.stack([getattr(s, f) for s in scenes]))
@@ -75,6 +82,8 @@ _LEAVES = ("rest", "springs", "rest_length", "stiffness", "mass", "pinned", "gra
 _CONTACT = ("colliders", "contact_gap", "contact_stiffness")
 #: The leaves that self-contact adds (``None`` without it).
 _SELF = ("contact_faces", "contact_edges")
+#: The leaves that the wind adds (``None`` without it).
+_AERO = ("wind", "drag", "lift")
 
 
 @functools.partial(jax.jit, static_argnames=("n_steps", "integrator", "checkpoint", "state_batched", "layout_batched",
@@ -204,7 +213,8 @@ def batch_rollout(scenes, state: State, dt, n_steps: int, integrator=ImplicitEul
     mesh = _sharding.batch_mesh(sharded, B)
     pad = 0
     if mesh is not None:
-        names = _LEAVES + _CONTACT + (_SELF if scenes.contact_faces is not None else ())
+        names = (_LEAVES + _CONTACT + (_SELF if scenes.contact_faces is not None else ())
+                 + (_AERO if scenes.wind is not None else ()))
         leaves, pad = _sharding.shard_leading({f: getattr(scenes, f) for f in names}, mesh, B)
         scenes = dataclasses.replace(scenes, **leaves)
         if layout_batched:

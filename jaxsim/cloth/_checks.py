@@ -49,6 +49,8 @@ def check_inputs(cloth: Cloth, state: State, dt, integrator) -> State:
         raise ValueError("colliders need ImplicitEuler: contact is a barrier in its incremental potential")
     if cloth.self_contact and isinstance(integrator, ExplicitEuler):
         raise ValueError("self_contact needs ImplicitEuler: self-contact is a barrier in its incremental potential")
+    if cloth.aero and isinstance(integrator, ExplicitEuler):
+        raise ValueError("drag and lift need ImplicitEuler or BDF2: the wind is a term of their incremental potential")
     if cloth.self_contact and isinstance(integrator, BDF2):
         raise ValueError("self_contact is not supported with BDF2 yet (its shifted base may cross a surface); "
                          "use ImplicitEuler")
@@ -140,6 +142,22 @@ def check_pins(cloth: Cloth, pins, lead: tuple, integrator):
             raise ValueError(f"pins must hold real numbers, got dtype {a.dtype}")
         check_finite("pins", a)
     return jnp.asarray(pins, cloth.dtype)
+
+
+def check_wind(cloth: Cloth, wind, lead: tuple):
+    """A per-step wind: ``lead + (3,)`` finite velocities (m/s) in the scene's dtype, for a
+    scene with ``drag`` or ``lift``; or ``None``."""
+    if wind is None:
+        return None
+    if not cloth.aero:
+        raise ValueError("a wind path needs a scene with drag or lift (cloth.replace(scene, drag=...) on a scene "
+                         "with triangles, or grid/from_mesh(..., drag=...))")
+    if tuple(jnp.shape(wind)) != lead + (3,):
+        raise ValueError(f"wind (the path) must have shape {lead + (3,)}, one velocity per step, "
+                         f"got {tuple(jnp.shape(wind))}")
+    if is_concrete(wind):
+        check_finite("wind", wind)
+    return jnp.asarray(wind, cloth.dtype)
 
 
 def check_resume(cloth: Cloth, resume, batch: int | None = None, bdf2: bool = False):

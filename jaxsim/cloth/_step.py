@@ -10,7 +10,7 @@ import jax.numpy as jnp
 from jax import lax
 
 from .._validate import check_bool, check_int
-from ._checks import check_inputs, check_path, check_pins, check_resume, particle_array, valid_inputs
+from ._checks import check_inputs, check_path, check_pins, check_resume, check_wind, particle_array, valid_inputs
 from ._explicit import explicit
 from ._implicit.bdf2 import Before
 from ._implicit.extrapolate import History
@@ -46,6 +46,8 @@ def _step(cloth, layout, state, dt, integrator, prev=None, guess=None, history=N
     positions, ``(N, 3)``) or from the extrapolation of a :class:`History`; ``before``:
     BDF2's memory (``_implicit.bdf2.Before``; ``None`` otherwise); ``pins``: ``(K, 3)``
     the pinned particles' positions at the end of the step, or ``None``."""
+    if not cloth.aero and cloth.wind is not None:  # the step never reads them
+        cloth = dataclasses.replace(cloth, wind=None, drag=None, lift=None)
     if isinstance(integrator, ExplicitEuler):
         return (*_explicit(cloth, state, dt, integrator, layout), None)
     start, tight = None, False
@@ -107,17 +109,19 @@ def step(cloth: Cloth, state: State, dt, integrator=ImplicitEuler(), guess=None,
 
 
 @functools.partial(jax.jit, static_argnames=("n_steps", "integrator", "checkpoint"))
-def _rollout(cloth, layout, state, dt, n_steps, integrator, checkpoint=False, path=None, resume=None, pins=None):
+def _rollout(cloth, layout, state, dt, n_steps, integrator, checkpoint=False, path=None, resume=None, pins=None,
+             wind=None):
     extrapolate = (isinstance(integrator, ImplicitEuler) and integrator.extrapolate and not cloth.colliders
                    and not cloth.self_contact)
 
     def f(carry, xs):
-        cols, pin = xs
+        cols, pin, air = xs
         s, prev, history, before = carry  # history: None unless extrapolating; before: BDF2's
+        scene = cloth if air is None else dataclasses.replace(cloth, wind=air)
         if cols is None:
-            s2, info, before = _step(cloth, layout, s, dt, integrator, history=history, before=before, pins=pin)
+            s2, info, before = _step(scene, layout, s, dt, integrator, history=history, before=before, pins=pin)
         else:  # a collider path: no extrapolation (colliders)
-            s2, info, before = _step(dataclasses.replace(cloth, colliders=cols), layout, s, dt, integrator, prev,
+            s2, info, before = _step(dataclasses.replace(scene, colliders=cols), layout, s, dt, integrator, prev,
                                      before=before, pins=pin)
         history = None if history is None else history.advance(s.v, info, integrator.extrapolate)
         return (s2, cols if cols is not None else prev, history, before), (s2, info)
@@ -129,11 +133,11 @@ def _rollout(cloth, layout, state, dt, n_steps, integrator, checkpoint=False, pa
     before = None
     if isinstance(integrator, BDF2):
         before = Before.none(state.x, state.v) if resume is None else resume.before(state.x, state.v, dt)
-    _, (states, infos) = lax.scan(f, (state, prev0, history, before), (path, pins), length=n_steps)
+    _, (states, infos) = lax.scan(f, (state, prev0, history, before), (path, pins, wind), length=n_steps)
     return states, infos
 
 def rollout(cloth: Cloth, state: State, dt, n_steps: int, integrator=ImplicitEuler(),
-            checkpoint: bool = False, colliders=None, resume=None, pins=None) -> tuple[State, StepInfo]:
+            checkpoint: bool = False, colliders=None, resume=None, pins=None, wind=None) -> tuple[State, StepInfo]:
     """``n_steps`` steps in one ``lax.scan``.
 
     Differentiable end to end: implicit steps carry implicit-function derivatives (one
@@ -174,6 +178,8 @@ def rollout(cloth: Cloth, state: State, dt, n_steps: int, integrator=ImplicitEul
         included) and end each step exactly on the path; the free particles are solved with
         them as boundary conditions, and derivatives flow to the path (``ImplicitEuler`` or
         ``BDF2``; ``anim.bone_points`` gives such paths from a clip).
+      wind: ``(n_steps, 3)`` the air's velocity over each step (m/s), or ``None`` (the
+        scene's ``wind`` throughout); for a scene with ``drag`` or ``lift``.
 
     Returns:
       ``(states, infos)`` stacked over a leading ``(n_steps,)`` axis (``states.x`` is
@@ -184,6 +190,7 @@ def rollout(cloth: Cloth, state: State, dt, n_steps: int, integrator=ImplicitEul
     path = check_path(cloth, colliders, n_steps)
     resume = check_resume(cloth, resume, bdf2=isinstance(integrator, BDF2))
     pins = check_pins(cloth, pins, (n_steps,), integrator)
+    wind = check_wind(cloth, wind, (n_steps,))
     layout = layout_of(cloth.springs, cloth.rest)
     return _rollout(cloth, layout, state, jnp.asarray(dt, cloth.dtype), n_steps, integrator,
-                    check_bool("checkpoint", checkpoint), path, resume, pins)
+                    check_bool("checkpoint", checkpoint), path, resume, pins, wind)

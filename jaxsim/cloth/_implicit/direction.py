@@ -14,7 +14,9 @@ from ..._dataclass import pytree_dataclass
 from .._model import energy as en
 from .linsolve import dense_solve, lu_solve, pcg
 from .setup import NewtonSetup
-from .._self.terms import PairBlocks, blocks as pair_blocks
+from .._model.aero import blocks as aero_blocks
+from .._rank_one import RankOne, combine
+from .._self.terms import blocks as pair_blocks
 
 #: ``project_psd="auto"``: when the exact Hessian is not positive definite, the direction is
 #: first retried on the exact Hessian plus this many times the inertia term ``M / h^2``
@@ -54,14 +56,15 @@ class HessianParts:
         planes for PCG on a grid: ``hessian``).
       contact: the PSD contact blocks in PCG's layout (``(N, 3, 3)`` dense), or ``None``.
       precond: the SPD preconditioner ``r -> z`` (``None`` for Cholesky).
-      pairs: the self-contact pairs' PSD blocks (``_self.terms.PairBlocks``), or ``None``.
+      pairs: the rank-one PSD blocks of the self-contact pairs and the wind's drag
+        (``_rank_one.RankOne``), or ``None``.
     """
 
     exact: jax.Array
     psd: jax.Array
     contact: jax.Array | None
     precond: Callable | None
-    pairs: PairBlocks | None = None
+    pairs: RankOne | None = None
 
 
 def _safe_ratio(num, den):
@@ -79,6 +82,8 @@ def hessian_parts(sv: NewtonSetup, w, terms, pairs=None) -> HessianParts:
     if sv.p.selfc is not None:
         p = sv.at(pairs)
         P = pair_blocks(p.selfc, p.positions(w), sv.free)
+    if sv.p.aero is not None:
+        P = combine(P, aero_blocks(sv.p.aero, sv.p.displacement(w), sv.p.h, sv.free))
     if sv.dense:
         return HessianParts(A_exact, A_psd, C, None, P)
     return HessianParts(A_exact, A_psd, C_cg, ops.preconditioner(A_psd, C, C_cg, P), P)
@@ -94,7 +99,7 @@ def dense(sv: NewtonSetup, b, H, indefinite=False) -> Direction:
     return Direction(dx.reshape(sv.N, 3), jnp.int32(0), res, ~jnp.all(jnp.isfinite(dx)), jnp.int32(0))
 
 
-def assembled(sv: NewtonSetup, A, C, inertia=1.0, pairs: PairBlocks | None = None):
+def assembled(sv: NewtonSetup, A, C, inertia=1.0, pairs: RankOne | None = None):
     """The dense Hessian ``(3N, 3N)``: spring blocks ``A``, ``inertia M/h^2``, contact ``C``
     and the self-contact ``pairs``."""
     c, h, N = sv.p.cloth, sv.p.h, sv.N

@@ -119,7 +119,7 @@ class HessianOps:
 
     def hvp(self, A, C_cg, inertia=1.0, pairs=None):
         """``v -> (inertia M/h^2 + sum_s A_s + C + sum_pairs B) v`` (unrestricted); ``pairs``:
-        the self-contact blocks (``_self.terms.PairBlocks``), applied in ``(N, 3)``."""
+        the self-contact blocks (``_rank_one.RankOne``), applied in ``(N, 3)``."""
         h = self.p.h
 
         def apply(v):

@@ -30,6 +30,7 @@ from ..._dataclass import pytree_dataclass
 from ..._dtype import tiny
 from ..._fusion import materialized
 from . import contact as ct
+from .._model import aero as aero_
 from .._model import energy as en
 from .._layout import Layout, layout_of
 from .._model.scene import Cloth
@@ -64,6 +65,8 @@ class StepProblem:
         ``Cloth.self_contact``.
       pin_to: ``(N, 3)`` where the pinned particles are at the end of the step (m; other
         rows unused), or ``None``: pins stay at ``x^n``.
+      aero: the wind's terms frozen at the step's start (``_model.aero.AeroTerms``),
+        ``None`` unless ``Cloth.aero``.
     """
 
     cloth: Cloth
@@ -79,6 +82,7 @@ class StepProblem:
     contact: ct.ContactTerms | None = None
     selfc: sc.SelfContact | None = None
     pin_to: jax.Array | None = None
+    aero: aero_.AeroTerms | None = None
 
     @staticmethod
     def build(cloth: Cloth, x0, v0, h, prev_colliders=None, layout: Layout | None = None,
@@ -110,8 +114,9 @@ class StepProblem:
         if cloth.self_contact:
             kappa = ct.default_stiffness(cloth, h) if cloth.contact_stiffness is None else cloth.contact_stiffness
             selfc = sc.build(cloth, kappa)
+        wind = aero_.build(cloth, x0, v0) if cloth.aero else None
         return StepProblem(cloth, layout, x0, v0, h, d0, l0, l0 - cloth.rest_length,
-                           h * layout.diff(cloth.springs, v0), e0, contact, selfc, pins)
+                           h * layout.diff(cloth.springs, v0), e0, contact, selfc, pins, wind)
 
     @property
     def touches(self) -> bool:
@@ -229,6 +234,10 @@ def _self_potential(w, p: StepProblem):
     return sc.potential(p.selfc, p.positions(w), p.free)
 
 
+def _aero_potential(w, p: StepProblem):
+    return aero_.potential(p.aero, p.displacement(w), p.h)
+
+
 def objective(w, p: StepProblem, t: SpringTerms):
     """``g(w)`` (J) from the spring terms ``t`` at ``w``."""
     c = p.cloth
@@ -238,6 +247,8 @@ def objective(w, p: StepProblem, t: SpringTerms):
         g = g + _contact_potential(w, p)
     if p.selfc is not None:
         g = g + _self_potential(w, p)
+    if p.aero is not None:
+        g = g + _aero_potential(w, p)
     return g
 
 
@@ -274,6 +285,8 @@ def gradient(w, p: StepProblem, t: SpringTerms):
         out = out + jax.grad(_contact_potential)(w, p)
     if p.selfc is not None:
         out = out + jax.grad(_self_potential)(w, p)
+    if p.aero is not None:
+        out = out + jax.grad(_aero_potential)(w, p)
     return out
 
 
@@ -297,6 +310,8 @@ def force_scale(w, p: StepProblem, t: SpringTerms | None = None):
         scale = scale + ct.force_magnitudes(p.displacement(w), p.x0, c, p.contact, p.free)
     if p.selfc is not None:
         scale = scale + sc.force_magnitudes(p.selfc, p.positions(w), p.free)
+    if p.aero is not None:
+        scale = scale + aero_.force_magnitudes(p.aero, p.displacement(w), p.h, c.num_particles)
     return scale
 
 

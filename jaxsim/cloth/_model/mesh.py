@@ -78,7 +78,8 @@ def lumped_masses(V, T, density: float) -> np.ndarray:
 
 def from_mesh(vertices, triangles, *, stiffness: float = 100.0, bending: float | None = None, density: float = 0.2,
               damping: float = 0.02, gravity: float = 9.8, pins=None, dtype=None, colliders=(),
-              contact_gap=None, self_contact: bool = False, self_contact_pairs: int | None = None) -> Cloth:
+              contact_gap=None, self_contact: bool = False, self_contact_pairs: int | None = None,
+              wind=None, drag: float | None = None, lift: float | None = None) -> Cloth:
     """A cloth from a triangle mesh.
 
     - Structural springs on the unique triangle edges, of stiffness ``stiffness``.
@@ -104,6 +105,7 @@ def from_mesh(vertices, triangles, *, stiffness: float = 100.0, bending: float |
       dtype: float32 or float64 (default: JAX's default float).
       colliders, contact_gap: as for :class:`Cloth`.
       self_contact, self_contact_pairs: as for :class:`Cloth` (the triangles are the mesh's).
+      wind, drag, lift: as for :class:`Cloth` (on the mesh's triangles).
 
     Raises:
       ValueError: bad shapes, ids out of range, zero-area or duplicated triangles,
@@ -134,8 +136,8 @@ def from_mesh(vertices, triangles, *, stiffness: float = 100.0, bending: float |
         rest=V.astype(dtype), springs=springs, rest_length=L.astype(dtype), stiffness=k.astype(dtype),
         mass=lumped_masses(V, T, density).astype(dtype), pinned=pin_mask(len(V), [] if pins is None else pins),
         gravity=np.asarray([0.0, -gravity, 0.0], dtype), damping=np.asarray(damping, dtype), colliders=colliders,
-        contact_gap=contact_gap, contact_faces=T if self_contact else None, self_contact=bool(self_contact),
-        self_contact_pairs=self_contact_pairs or 0,
+        contact_gap=contact_gap, contact_faces=T if self_contact or drag or lift else None,
+        self_contact=bool(self_contact), self_contact_pairs=self_contact_pairs or 0, wind=wind, drag=drag, lift=lift,
     )
 
 

@@ -47,6 +47,13 @@ class Cloth:
       self_contact_pairs: static number of slots for each kind of pair (point–triangle,
         edge–edge) a step may see (default ``8 N``); a step that finds more says so in
         ``StepInfo.pair_overflow`` and is not converged.
+      wind: ``(3,)`` the air's velocity (m/s), or ``None`` (still air); ``rollout(wind=)``
+        gives one per step.
+      drag, lift: ``()`` the triangles' aerodynamic drag and lift coefficients
+        ``rho C / 2`` (kg/m^3), >= 0, or ``None`` (0) (``_model.aero``); they act on the
+        ``contact_faces`` triangles.
+      aero: static flag, ``drag`` or ``lift`` nonzero at construction; when False the
+        compiled step holds no wind code at all.
 
     Raises:
       ValueError: on wrong shapes, non-finite values, non-positive masses or rest
@@ -69,6 +76,10 @@ class Cloth:
     contact_edges: jax.Array | None = None
     self_contact: bool = static_field(default=False)
     self_contact_pairs: int = static_field(default=0)
+    wind: jax.Array | None = None
+    drag: jax.Array | None = None
+    lift: jax.Array | None = None
+    aero: bool | None = static_field(default=None)
 
     def __post_init__(self):
         leaves = (self.rest, self.springs, self.rest_length, self.stiffness, self.mass, self.pinned,
@@ -138,10 +149,37 @@ class Cloth:
                 hit = first_intersection(np.asarray(rest, np.float64), faces, edges)
                 if hit is not None:
                     raise ValueError(f"the rest shape intersects itself: {hit}")
+        if self.wind is not None or self.drag is not None or self.lift is not None:
+            self._check_aero(N, dtype)
+        else:
+            set_(self, "aero", False)
         inside = is_concrete(*jax.tree_util.tree_leaves(self.colliders)) and count_inside(
             self.colliders, self.rest, ~np.asarray(pinned))
         if inside:
             raise ValueError(describe_inside(inside, "rest positions"))
+
+    def _check_aero(self, N: int, dtype) -> None:
+        """Wind, drag and lift: finite, ``drag, lift >= 0``, and the triangles they act on;
+        the static ``aero`` flag from their values (``None``: set it from them; traced
+        values count as nonzero)."""
+        set_ = object.__setattr__
+        given = {"wind": np.zeros(3) if self.wind is None else self.wind,
+                 "drag": 0.0 if self.drag is None else self.drag, "lift": 0.0 if self.lift is None else self.lift}
+        if not is_concrete(*given.values()):
+            set_(self, "aero", True if self.aero is None else bool(self.aero))
+            for name, value in given.items():
+                set_(self, name, jnp.asarray(value, dtype))
+        else:
+            for name, value in given.items():
+                a = check_finite(name, check_shape(name, value, (3,) if name == "wind" else ()))
+                if name != "wind":
+                    check_positive(name, a, strict=False)
+                set_(self, name, as_float(a, dtype))
+            on = float(self.drag) != 0.0 or float(self.lift) != 0.0
+            set_(self, "aero", on if self.aero is None else bool(self.aero) or on)
+        if self.aero and self.contact_faces is None:
+            raise ValueError("drag and lift act on the scene's triangles: build it with grid(..., drag=...) or "
+                             "from_mesh(..., drag=...), or pass contact_faces=(F, 3) particle ids")
 
     @property
     def num_particles(self) -> int:
@@ -234,7 +272,8 @@ def grid_springs(n: int) -> tuple[np.ndarray, np.ndarray]:
 
 def grid(n: int, spacing: float = 0.2, *, origin=(0.0, 1.5, -1.0), mass: float = 1.0, stiffness: float = 100.0,
          damping: float = 0.2, gravity: float = 0.3, pins=None, dtype=None, colliders=(),
-         contact_gap=None, self_contact: bool = False, self_contact_pairs: int | None = None) -> Cloth:
+         contact_gap=None, self_contact: bool = False, self_contact_pairs: int | None = None,
+         wind=None, drag: float | None = None, lift: float | None = None) -> Cloth:
     """A square cloth of ``(n+1) x (n+1)`` particles in the plane ``y = origin[1]``.
 
     Particle ``(i, j)`` (id ``i*(n+1) + j``) starts at ``origin + (spacing*i, 0, spacing*j)``;
@@ -254,6 +293,7 @@ def grid(n: int, spacing: float = 0.2, *, origin=(0.0, 1.5, -1.0), mass: float =
       contact_gap: the barrier distance ``dhat`` (m); default as for :class:`Cloth`.
       self_contact, self_contact_pairs: as for :class:`Cloth` (the triangles are
         ``grid_triangles(n)``).
+      wind, drag, lift: as for :class:`Cloth` (on the same triangles).
     """
     n = check_int("grid n (cells per side)", n, 1)
     spacing = check_real("spacing", spacing, minimum=0.0, strict=True)
@@ -273,8 +313,8 @@ def grid(n: int, spacing: float = 0.2, *, origin=(0.0, 1.5, -1.0), mass: float =
         stiffness=np.full(len(springs), stiffness, dtype), mass=np.full(m * m, mass, dtype),
         pinned=pin_mask(m * m, pins), gravity=np.asarray([0.0, -gravity, 0.0], dtype),
         damping=np.asarray(damping, dtype), colliders=colliders, contact_gap=contact_gap,
-        contact_faces=_grid_faces(n) if self_contact else None, self_contact=bool(self_contact),
-        self_contact_pairs=self_contact_pairs or 0,
+        contact_faces=_grid_faces(n) if self_contact or drag or lift else None, self_contact=bool(self_contact),
+        self_contact_pairs=self_contact_pairs or 0, wind=wind, drag=drag, lift=lift,
     )
 
 
@@ -296,7 +336,9 @@ def replace(cloth: Cloth, **kw) -> Cloth:
     ``mass`` are broadcast to ``(S,)``/``(N,)`` in the scene's dtype, and a new
     ``damping`` sets the static ``damped`` flag (so a zero damping can still be traced).
     ``self_contact=True`` needs the scene's triangles: a scene built with them
-    (``grid``/``from_mesh(..., self_contact=True)``), or ``contact_faces=`` given too.
+    (``grid``/``from_mesh(..., self_contact=True)``), or ``contact_faces=`` given too; so
+    do ``drag`` and ``lift`` (``grid``/``from_mesh(..., drag=...)``).  A new ``drag`` or
+    ``lift`` sets the static ``aero`` flag from the new values.
     """
     shapes = {"stiffness": (cloth.num_springs,), "rest_length": (cloth.num_springs,), "mass": (cloth.num_particles,)}
     for name, shape in shapes.items():
@@ -304,4 +346,6 @@ def replace(cloth: Cloth, **kw) -> Cloth:
             kw[name] = jnp.full(shape, kw[name], cloth.dtype)
     if "damping" in kw and "damped" not in kw:
         kw["damped"] = True
+    if ("drag" in kw or "lift" in kw) and "aero" not in kw:
+        kw["aero"] = None  # set again from the new values
     return dataclasses.replace(cloth, **kw)

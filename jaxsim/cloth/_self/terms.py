@@ -20,6 +20,7 @@ import jax.numpy as jnp
 from ..._dataclass import pytree_dataclass, static_field
 from .._implicit.contact import _d, barrier, barrier_slope
 from ..._fusion import materialized
+from .._rank_one import RankOne
 from . import broadphase as bp
 from . import ccd
 from .distance import mollifier_soa, point_triangle2, point_triangle2_soa, segment_segment2, segment_segment2_soa
@@ -196,49 +197,16 @@ def force_magnitudes(sc: SelfContact, x, free) -> jax.Array:
     return out * free[:, 0]
 
 
-@pytree_dataclass
-class PairBlocks:
-    """The pairs' Hessian blocks in the Gauss–Newton form ``c g g^T`` (rank one, PSD).
+def blocks(sc: SelfContact, x, free) -> RankOne:
+    """The pairs' Hessian blocks at ``x (N, 3)``, in the Gauss–Newton form ``c g g^T``
+    (``_rank_one.RankOne``, rank one and PSD).
 
     For the barrier ``w b(d)`` of a pair the block is ``w b''(d) grad d grad d^T`` plus
     ``w b'(d) Hess d`` (and, for edges, the mollifier's terms).  The first is PSD
     (``b'' > 0``); the rest is dropped, as the colliders' projection drops it
-    (``_implicit.contact``), so the gradient stays exact and the Hessian is a PSD
-    model of it.
-
-    Attributes:
-      ids: ``(P + Q, 4)`` int32 particle ids.
-      g: ``(P + Q, 12)`` ``grad d`` over the pair's four particles (0 on pins and unused slots).
-      c: ``(P + Q,)`` ``w b''(d)`` (N/m^3 times m^2: N/m), 0 where no barrier acts.
-    """
-
-    ids: jax.Array
-    g: jax.Array
-    c: jax.Array
-
-    def matvec(self, v):
-        """``(N, 3) -> (N, 3)``: the blocks applied to ``v``."""
-        P = self.ids.shape[0]
-        s = self.c * jnp.sum(self.g * v[self.ids].reshape(P, 12), axis=1)
-        return jnp.zeros_like(v).at[self.ids].add((s[:, None] * self.g).reshape(P, 4, 3))
-
-    def diagonal(self, N):
-        """``(N, 3, 3)`` the blocks' 3x3 diagonal blocks summed per particle."""
-        P = self.ids.shape[0]
-        g = self.g.reshape(P, 4, 3)
-        d = self.c[:, None, None, None] * g[:, :, :, None] * g[:, :, None, :]
-        return jnp.zeros((N, 3, 3), self.g.dtype).at[self.ids].add(d)
-
-    def dense(self, N):
-        """``(3N, 3N)`` the blocks assembled."""
-        P = self.ids.shape[0]
-        rows = (self.ids[:, :, None] * 3 + jnp.arange(3)).reshape(P, 12)
-        H = self.c[:, None, None] * self.g[:, :, None] * self.g[:, None, :]
-        return jnp.zeros((3 * N, 3 * N), self.g.dtype).at[rows[:, :, None], rows[:, None, :]].add(H)
-
-
-def blocks(sc: SelfContact, x, free) -> PairBlocks:
-    """The pairs' Hessian blocks at ``x (N, 3)`` (:class:`PairBlocks`)."""
+    (``_implicit.contact``), so the gradient stays exact and the Hessian is a PSD model
+    of it.  ``g`` is ``grad d`` over the pair's four particles (0 on pins), ``c`` is
+    ``w b''(d)`` (0 where no barrier acts)."""
     s = current(sc, x)
     ids_all, g_all, c_all = [], [], []
     for kind, ids, moves, X in _kinds(s, x, free):
@@ -249,7 +217,7 @@ def blocks(sc: SelfContact, x, free) -> PairBlocks:
         ids_all.append(ids)
         g_all.append(g.reshape(-1, 12) * mask)
         c_all.append(c)
-    return PairBlocks(jnp.concatenate(ids_all), materialized(jnp.concatenate(g_all)), jnp.concatenate(c_all))
+    return RankOne(jnp.concatenate(ids_all), materialized(jnp.concatenate(g_all)), jnp.concatenate(c_all))
 
 
 def step_bound(sc: SelfContact, s: PairSet, x, dx, t_max):
