@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+import jax
 import numpy as np
 
-from ._common import check_fps, check_frames, new_figure, world_limits
+from ._common import check_fps, check_frames, new_figure, world_cube, world_limits
 from ._gif import GifWriter, gif_dpi
 from ._style import CLOTH, FLOOR, SOLID, legend
 
@@ -33,18 +34,26 @@ def _polys(x, T):
     return x[T][..., [0, 2, 1]]  # draw (x, z, y): world y up on the plot's vertical axis
 
 
-def _check_colliders(colliders) -> tuple:
-    """One static collider or a tuple of them, each with a scene's shapes (no path axis)."""
+def _check_colliders(colliders, frames: int | None = None) -> tuple:
+    """One static collider or a tuple of them, each with a scene's shapes; with ``frames``,
+    also a path: every leaf with a leading ``(frames,)`` axis.  Returns ``(colliders,
+    moving)``, or the colliders alone without ``frames``."""
     from ..cloth._model.colliders import COLLIDERS, check_scene_shapes
 
     if isinstance(colliders, COLLIDERS):
         colliders = (colliders,)
     if not isinstance(colliders, (tuple, list)) or not all(isinstance(c, COLLIDERS) for c in colliders):
         raise ValueError(f"colliders must be a tuple of cloth.Plane, cloth.Sphere or cloth.Capsule, got {colliders!r:.120}")
+    colliders = tuple(colliders)
+    leaves = jax.tree_util.tree_leaves(colliders)
+    if frames is not None and colliders and all(np.ndim(a) >= 1 and np.shape(a)[0] == frames for a in leaves):
+        for k, c in enumerate(colliders):
+            check_scene_shapes(jax.tree_util.tree_map(lambda a: a[0], c), k, "a path has one leading frame axis")
+        return colliders, True
     for k, c in enumerate(colliders):
-        check_scene_shapes(c, k, "draw one scene's or one step's colliders: "
-                                 "jax.tree_util.tree_map(lambda a: a[t], colliders)")
-    return tuple(colliders)
+        check_scene_shapes(c, k, "draw one scene's or one step's colliders: jax.tree_util.tree_map(lambda a: a[t], "
+                                 "colliders), or pass a path with one entry per frame of xs")
+    return colliders if frames is None else (colliders, False)
 
 
 def _lambert(normals, base, alpha=1.0):
@@ -177,31 +186,50 @@ def _legend(ax, colliders):
 
 
 def animate_surface(xs, triangles, path: str, colliders=(), fps: int = 30, stride: int = 1, title: str = "",
-                    dpi: float | None = None, elev: float = 20.0, azim: float = -60.0):
-    """Write a GIF of the shaded mesh over ``xs (T, N, 3)``, with the (static) colliders
-    depth-sorted together with it, and a legend.
+                    dpi: float | None = None, elev: float = 20.0, azim: float = -60.0, follow: bool = False):
+    """Write a GIF of the shaded mesh over ``xs (T, N, 3)``, with the colliders depth-sorted
+    together with it, and a legend.  ``colliders``: static, or a path with a leading
+    ``(T,)`` axis on every leaf (one pose per frame of ``xs``: moving capsules of a body).
 
     ``dpi``: default the least that gives a short side of 480 px (``_gif``); ``elev`` and
-    ``azim``: the camera (degrees, matplotlib's).  Returns the frame count.
+    ``azim``: the camera (degrees, matplotlib's); ``follow``: the view box moves with the
+    cloth (its size stays that of the largest frame).  Returns the frame count.
     """
     fps = check_fps(fps)
     xs = np.asarray(xs, np.float64)
     xs = check_frames("xs", xs, (xs.shape[-2] if xs.ndim == 3 else -1, 3))
     T = _check_triangles(triangles, xs.shape[1])
-    colliders = _check_colliders(colliders)
+    colliders, moving = _check_colliders(colliders, len(xs))
+    at = (lambda t: tuple(jax.tree_util.tree_map(lambda a: np.asarray(a)[t], colliders))) if moving else (
+        lambda t: colliders)
     fig, ax = new_figure(4, 4, projection="3d")
     dpi = gif_dpi(fig, dpi)
     ax.view_init(elev=elev, azim=azim)
-    c, r = world_limits(ax, xs.reshape(-1, 3), _floor(colliders))
-    solids = _collider_faces(colliders, c, r)
+    extent = xs.reshape(-1, 3)
+    if moving:  # the body's path in view too
+        ends = [np.asarray(getattr(c, f)).reshape(-1, 3) for c in colliders for f in ("a", "b", "center")
+                if hasattr(c, f)]
+        extent = np.concatenate([extent] + ends)
+    c, r = world_limits(ax, extent, _floor(at(0)))
+    if follow:  # a box the size of the largest frame's, centred on each frame's cloth
+        r = 0.55 * max(float(np.max(np.ptp(xs, axis=1))), 1e-3) * 1.6
+        centres = 0.5 * (xs.min(1) + xs.max(1))
+        c = centres[0]
+        world_cube(ax, c, r)
+    solids = _collider_faces(at(0), c, r)
     polys, rgba = _scene(xs[0], T, solids)
     surf = _depth_sorted(polys, rgba, len(T))
     ax.add_collection3d(surf)
-    _legend(ax, colliders)
+    _legend(ax, at(0))
     txt = ax.set_title(title, fontsize=9)
     frames = range(0, len(xs), max(1, int(stride)))
     with GifWriter(fig, path, fps, dpi) as writer:
         for t in frames:
+            if follow:
+                c = centres[t]
+                world_cube(ax, c, r)
+            if moving:
+                solids = _collider_faces(at(t), c, r)
             polys, rgba = _scene(xs[t], T, solids)
             surf.set_verts(polys)
             surf.set_facecolor(rgba)
