@@ -115,6 +115,24 @@ def self_contact_table():
     return "\n".join(out)
 
 
+def character_table():
+    out = ["| cape | dtype | wind | steps | converged | substeps (most) | Newton/step | ms/step | compile (s) | "
+           "min distance to body (mm) | pins off path (m) |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for name in ("cloth_character_quick", "cloth_character"):
+        if not os.path.exists(os.path.join(RESULTS, name + ".json")):
+            continue
+        d = load(name)
+        for r in d["rows"]:
+            out.append(f"| {r['n']}x{r['n']}, {r['seconds']:g} s | {r['dtype']} | {'on' if r['wind'] else 'off'} | "
+                       f"{r['steps']} | {100 * r['converged_share']:.1f}% | {r['substeps_max']} | "
+                       f"{r['newton_per_step']:.1f} | {r['ms_per_step']:.0f} | {r['compile_s']:.1f} | "
+                       f"{1e3 * r['min_distance_to_body_m']:.3f} | {r['max_pin_error_m']:.0e} |")
+    out.append("")
+    out.append(f"(`{'`, `'.join(n + '.json' for n in ('cloth_character_quick', 'cloth_character'))}`, "
+               f"{load('cloth_character_quick')['timestamp'][:10]})")
+    return "\n".join(out)
+
+
 def bdf2_table():
     d = load("cloth_bdf2")
     out = ["| swing | integrator | dt | error at 1 s (m) | energy kept | Newton/step | ms per simulated s | compile (s) |",
@@ -193,9 +211,10 @@ def headline_table():
 
 TABLES = {"vbd": vbd_table, "headline": headline_table, "ik": ik_table, "stability": stability_table, "cloth": cloth_table, "scaling": scaling_table,
           "substeps": substeps_table, "bdf2": bdf2_table,
-          "self_contact": self_contact_table}
+          "self_contact": self_contact_table, "character": character_table}
 _ROOT = os.path.join(os.path.dirname(RESULTS), os.pardir)
-GUIDES = (os.path.join(_ROOT, "docs", "performance.md"), os.path.join(_ROOT, "README.md"))
+GUIDES = (os.path.join(_ROOT, "docs", "performance.md"), os.path.join(_ROOT, "README.md"),
+          os.path.join(_ROOT, "docs", "character.md"))
 _BLOCK = re.compile(r"(<!-- generated: (\w+) -->\n)(.*?)(<!-- end generated -->)", re.S)
 
 

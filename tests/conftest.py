@@ -87,6 +87,7 @@ def _guard_memory_mappings():
 #: the other worker idles (xdist's default order is by test count, which put them at the end).
 SLOW_FIRST = ("test_notebooks.py", "test_report.py", "test_cloth_self_contact.py", "test_ik_limits.py", "test_cloth_trust.py", "test_ik_tree.py",
               "test_cloth_bdf2.py", "test_ik_solvers.py", "test_differentiable.py", "test_cloth_contact.py",
+              "test_cloth_character.py", "test_cloth_wind.py", "test_cloth_pins.py",
               "test_cloth_stability.py", "test_cloth_start.py", "test_cli.py", "test_sharding.py",
               "test_cloth_stencil.py", "test_cloth_coarse.py", "test_input_sweep.py", "test_cloth_substeps.py",
               "test_cloth_core.py")

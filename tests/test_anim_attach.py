@@ -68,6 +68,8 @@ def test_bone_points_against_numpy_fk():
         P, G = fk_reference(sk.parents, np.asarray(sk.offsets).copy(), np.asarray(WALK.rotations[t]), frames=True)
         P = P + np.asarray(WALK.root_positions[t]) - np.asarray(sk.offsets[0])
         np.testing.assert_allclose(pts[t], P[2] + local @ G[2].T, atol=1e-12)
+    back = anim.bone_local(WALK, "lknee", pts[7], frame=7)
+    np.testing.assert_allclose(back, local, atol=1e-12)
     on_60 = anim.bone_points(WALK, 2, local, frame_time=1 / 60)
     assert on_60.shape == (61, 2, 3)
     np.testing.assert_allclose(on_60[::2], pts, atol=1e-12)
@@ -99,6 +101,7 @@ def test_body_capsules_follow_the_bones_and_drive_a_rollout():
     (lambda: anim.bone_points(WALK, 1, np.zeros((1, 2))), "local_points must have shape"),
     (lambda: anim.bone_points(WALK, 1, np.full((1, 3), np.nan)), "local_points must be finite"),
     (lambda: anim.body_capsules(WALK, {"hips": 0.1}), "has 2 children"),
+    (lambda: anim.bone_local(WALK, 1, np.zeros((1, 3)), frame=31), "frame must be a frame index"),
     (lambda: anim.body_capsules(WALK, {"lhip": -0.1}), "radius of bone 'lhip'"),
     (lambda: anim.body_capsules(WALK, {}), "non-empty dict"),
     (lambda: anim.body_capsules(WALK, {("lhip",): 0.1}), "pair of joints"),

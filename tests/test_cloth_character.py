@@ -7,6 +7,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 from jax.test_util import check_grads
 
 from jaxsim import cloth as C
@@ -17,6 +18,7 @@ jax.config.update("jax_enable_x64", True)
 CAPE = cape(6, 0.25, dtype=np.float64)
 
 
+@pytest.mark.slow
 def test_the_cape_follows_its_pins_and_stays_outside_the_moving_body():
     states, infos = run_cape(CAPE)
     assert CAPE.steps == 15 and bool(jnp.all(infos.converged))
@@ -26,6 +28,7 @@ def test_the_cape_follows_its_pins_and_stays_outside_the_moving_body():
     assert float(states.x[-1, :, 2].mean() - CAPE.state.x[:, 2].mean()) > 0.05
 
 
+@pytest.mark.slow
 def test_gradients_of_a_cape_rollout_in_stiffness_and_wind():
     """On the torso's capsule alone: each collider is its own code in the compiled step, and
     the reverse pass of all eleven compiles for a minute (docs/notebook.md)."""

@@ -62,6 +62,7 @@ def test_step_with_pins_equals_the_rollouts_first_step():
     assert np.abs(np.asarray(one.x)[IDS] - PATH[0]).max() == 0.0
 
 
+@pytest.mark.slow
 def test_substeps_with_moving_pins_equal_halved_steps():
     """A stiff scene whose fast pins need substeps: the compiled bisection moves the pins on
     straight lines, as the host recursion of plain steps does."""
@@ -98,6 +99,7 @@ def test_chunks_resumed_equal_one_rollout():
     np.testing.assert_allclose(second.x, whole.x[3:], rtol=0, atol=1e-12)
 
 
+@pytest.mark.slow
 def test_batch_rollout_with_per_scene_and_shared_paths_equals_single_rollouts():
     other = C.replace(SCENE, stiffness=80.0)
     paths = np.stack([PATH, translation([-0.3, 0.0, 0.4])])
@@ -110,6 +112,7 @@ def test_batch_rollout_with_per_scene_and_shared_paths_equals_single_rollouts():
     np.testing.assert_allclose(shared.x[1], ref.x, rtol=0, atol=1e-12)
 
 
+@pytest.mark.slow
 def test_gradients_flow_to_the_pin_path():
     def loss(path):
         states, _ = C.rollout(SCENE, START, DT, 3, pins=path)

@@ -91,6 +91,7 @@ def test_a_scene_without_drag_or_lift_compiles_no_wind_code():
     assert n[0] == n[1] < n[2]
 
 
+@pytest.mark.slow
 def test_gradients_flow_to_drag_and_wind():
     def final(drag, wind):
         scene = C.replace(FACING, drag=drag, wind=wind)
@@ -100,6 +101,7 @@ def test_gradients_flow_to_drag_and_wind():
     check_grads(final, (jnp.asarray(0.6), jnp.asarray([0.5, 0.0, 3.0])), order=1, modes=("rev",), eps=1e-6)
 
 
+@pytest.mark.slow
 def test_batch_rollout_with_wind_equals_single_rollouts():
     other = C.replace(FACING, drag=0.3, wind=jnp.asarray([0.0, 1.0, 2.0]))
     states, _ = C.batch_rollout([FACING, other], AT_REST, DT, 4)

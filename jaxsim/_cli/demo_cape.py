@@ -52,10 +52,9 @@ def cape(n: int = 24, seconds: float = 4.0, dt: float = 1 / 60, start: float = 4
     import numpy as np
 
     from .. import anim, cloth
-    from .._geometry import quat
 
     clip = anim.resample(anim.cmu_walk(), dt, start=start, duration=seconds)
-    P, G = (np.asarray(a) for a in (anim.positions(clip), anim.global_rotations(clip)))
+    P = np.asarray(anim.positions(clip))
     chest = clip.skeleton.index("Chest2")
     left = P[0, clip.skeleton.index("LeftShoulder")] - P[0, clip.skeleton.index("RightShoulder")]
     left[1] = 0.0
@@ -65,9 +64,7 @@ def cape(n: int = 24, seconds: float = 4.0, dt: float = 1 / 60, start: float = 4
     top = P[0, chest] + 0.09 * up - 0.16 * forward  # above the chest joint, behind the back
     across, down = np.linspace(-width / 2, width / 2, n), np.linspace(0.0, length, n)
     V = (top - down[:, None, None] * up + across[None, :, None] * left).reshape(-1, 3)
-    q = quat.unstack(jnp.asarray(np.broadcast_to(G[0, chest], (n, 4))), -1)
-    local = quat.stack(quat.rotate(quat.conj(q), quat.unstack(jnp.asarray(V[:n] - P[0, chest]), -1)), -1)
-    pins = anim.bone_points(clip, chest, local)
+    pins = anim.bone_points(clip, chest, anim.bone_local(clip, chest, V[:n]))
     caps = anim.body_capsules(clip, CMU_BODY if body is None else body)
     T = cloth.grid_triangles(n - 1)
     on = drag > 0 or lift > 0

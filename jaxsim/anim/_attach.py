@@ -99,6 +99,22 @@ def bone_points(motion: Motion, joint, local_points, frame_time: float | None = 
     return P[:, j][:, None, :] + _quat.stack(_quat.rotate(q, v), axis=-1)
 
 
+def bone_local(motion: Motion, joint, points, frame: int = 0):
+    """``(K, 3)`` world ``points (K, 3)`` in a joint's frame at ``frame``: the inverse of
+    :func:`bone_points` there, so ``bone_points(motion, joint, bone_local(motion, joint, x))``
+    starts at ``x`` (a cape's top edge where it hangs at the clip's first frame)."""
+    j = _joint(motion, joint)
+    T = motion.num_frames
+    if isinstance(frame, (bool, np.bool_)) or not isinstance(frame, (int, np.integer)) or not -T <= frame < T:
+        raise ValueError(f"frame must be a frame index in [{-T}, {T}), got {frame!r}")
+    if is_concrete(points):
+        check_finite("points", check_shape("points", points, (None, 3)))
+    x = jnp.asarray(points, motion.skeleton.offsets.dtype)
+    P, G = _fk(motion.skeleton.parents, _offsets(motion), motion.root_positions, motion.rotations)
+    q = _quat.unstack(jnp.broadcast_to(G[frame, j], (x.shape[0], 4)), axis=-1)
+    return _quat.stack(_quat.rotate(_quat.conj(q), _quat.unstack(x - P[frame, j], axis=-1)), axis=-1)
+
+
 def _bone(motion: Motion, key) -> tuple[int, int]:
     """``(from, to)`` joint ids of a bone: a pair, or a joint with one child."""
     if isinstance(key, tuple):
