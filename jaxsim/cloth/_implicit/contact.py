@@ -101,6 +101,47 @@ def default_stiffness(cloth, h):
     return (length(cloth.gravity) + dhat / h**2) / dhat
 
 
+def runs(colliders) -> list:
+    """The colliders in runs of consecutive ones of one kind and friction flag: ``[(start,
+    members)]``.  A run of several is evaluated as one ``vmap``ped term (:func:`over`), so
+    a body of eleven capsules compiles the code of one."""
+    out, i = [], 0
+    while i < len(colliders):
+        j = i + 1
+        key = (type(colliders[i]), colliders[i].frictional)
+        while j < len(colliders) and (type(colliders[j]), colliders[j].frictional) == key:
+            j += 1
+        out.append((i, list(colliders[i:j])))
+        i = j
+    return out
+
+
+def over(members, f, *rows):
+    """``f(member, *row)`` for each member of a run (colliders, or tuples of them), stacked on
+    a leading axis; ``rows``: arrays with a leading axis, one entry per member.  One member is
+    evaluated as it is (the program of a scene with one collider per kind is unchanged), a
+    run of several under ``jax.vmap``."""
+    if len(members) == 1:
+        return jax.tree_util.tree_map(lambda a: a[None], f(members[0], *(r[0] for r in rows)))
+    treedef = jax.tree_util.tree_structure(members[0])
+    leaves = [jnp.stack(ls) for ls in zip(*(jax.tree_util.tree_leaves(m) for m in members))]
+    return jax.vmap(lambda ls, *r: f(jax.tree_util.tree_unflatten(treedef, ls), *r))(leaves, *rows)
+
+
+def _push_out(members, x, free, gap):
+    """``x (N, 3)`` with the free particles inside any collider of the run pushed out to
+    ``gap``, collider after collider."""
+    def one(x, c):
+        inside = ((c.distance(x) <= 0) & (free[:, 0] > 0))[:, None]
+        return jnp.where(inside, c.push_out(x, gap), x)
+
+    if len(members) == 1:
+        return one(x, members[0])
+    treedef = jax.tree_util.tree_structure(members[0])
+    leaves = [jnp.stack(ls) for ls in zip(*(jax.tree_util.tree_leaves(m) for m in members))]
+    return jax.lax.scan(lambda x, ls: (one(x, jax.tree_util.tree_unflatten(treedef, ls)), None), x, leaves)[0]
+
+
 def build(cloth, x0, h, free, prev=None, at=None) -> ContactTerms:
     """Lagged terms for a step of ``h`` (s) whose problem is built on ``x0 (N, 3)``.
 
@@ -114,43 +155,58 @@ def build(cloth, x0, h, free, prev=None, at=None) -> ContactTerms:
     dhat = cloth.contact_gap
     kappa = default_stiffness(cloth, h) if cloth.contact_stiffness is None else cloth.contact_stiffness
     x = x0 if at is None else at
-    for c in cols:  # a moving collider may have swept over particles: start outside it
-        inside = ((c.distance(x) <= 0) & (free[:, 0] > 0))[:, None]
-        x = jnp.where(inside, c.push_out(x, 0.5 * dhat), x)
+    for _, members in runs(cols):  # a moving collider may have swept over particles: start outside it
+        x = _push_out(members, x, free, 0.5 * dhat)
     lam, nrm, slide = [], [], []
-    for c, c0 in zip(cols, prev):
-        if c.frictional:
-            lam.append(cloth.mass * kappa * -barrier_slope(c.distance(x), dhat) * free[:, 0])
+    for i, members in runs(cols):
+        pairs = [(c, prev[i + k]) for k, c in enumerate(members)]
+        if members[0].frictional:
+            lam.append(over(pairs, lambda p: cloth.mass * kappa * -barrier_slope(p[0].distance(x), dhat) * free[:, 0]))
         else:
-            lam.append(jnp.zeros_like(cloth.mass))
-        nrm.append(c.normal_at(x))
-        slide.append(c.surface_motion(c0, x))
-    return ContactTerms(kappa=kappa, dhat=dhat, eps_h=FRICTION_EPS_V * h, lam=jnp.stack(lam), normal=jnp.stack(nrm),
-                        slide=jnp.stack(slide), start=(x - x0) * free, shift=None if at is None else x0 - at)
+            lam.append(jnp.zeros((len(members),) + cloth.mass.shape, cloth.mass.dtype))
+        nrm.append(over(pairs, lambda p: p[0].normal_at(x)))
+        slide.append(over(pairs, lambda p: p[0].surface_motion(p[1], x)))
+    return ContactTerms(kappa=kappa, dhat=dhat, eps_h=FRICTION_EPS_V * h, lam=jnp.concatenate(lam),
+                        normal=jnp.concatenate(nrm), slide=jnp.concatenate(slide), start=(x - x0) * free,
+                        shift=None if at is None else x0 - at)
 
 
-def _tangential(ct: ContactTerms, k, u):
-    r = (u if ct.shift is None else u + ct.shift) - ct.slide[k]
-    n = ct.normal[k]
+def _tangential(ct: ContactTerms, slide, n, u):
+    """The tangential motion ``(N, 3)`` relative to a surface that moved by ``slide`` with
+    lagged normals ``n`` (one collider's rows of ``ct``)."""
+    r = (u if ct.shift is None else u + ct.shift) - slide
     return r - dot(r, n)[..., None] * n
+
+
+def _rows(ct: ContactTerms, i, count):
+    """One run's rows ``(lam, normal, slide)`` of the lagged terms."""
+    return ct.lam[i:i + count], ct.normal[i:i + count], ct.slide[i:i + count]
 
 
 def barrier_energy(u, x0, cloth, ct: ContactTerms, free):
     """``sum_i m_i kappa b(d_i)`` over colliders and free particles (J)."""
     total = 0.0
-    for c in cloth.colliders:
+
+    def one(c):
         b = barrier(c.distance_from(x0, u), ct.dhat)
-        total = total + jnp.sum(jnp.where(free[:, 0] > 0, cloth.mass * b, 0.0))
+        return jnp.sum(jnp.where(free[:, 0] > 0, cloth.mass * b, 0.0))
+
+    for _, members in runs(cloth.colliders):
+        total = total + jnp.sum(over(members, one))
     return ct.kappa * total
 
 
 def friction_energy(u, cloth, ct: ContactTerms):
     """``sum mu lambda f0(|t|)`` over frictional colliders (J); 0 when there are none."""
     total = 0.0
-    for k, c in enumerate(cloth.colliders):
-        if c.frictional:
-            t = _tangential(ct, k, u)
-            total = total + c.friction * jnp.sum(ct.lam[k] * f0(dot(t, t), ct.eps_h))
+
+    def one(c, lam, n, slide):
+        t = _tangential(ct, slide, n, u)
+        return c.friction * jnp.sum(lam * f0(dot(t, t), ct.eps_h))
+
+    for i, members in runs(cloth.colliders):
+        if members[0].frictional:
+            total = total + jnp.sum(over(members, one, *_rows(ct, i, len(members))))
     return total
 
 
@@ -175,31 +231,40 @@ def blocks(u, x0, cloth, ct: ContactTerms, free):
     ``P = I - n n^T`` (exact, and PSD since the friction potential is convex).
     """
     out = jnp.zeros(u.shape + (3,), u.dtype)
-    for k, c in enumerate(cloth.colliders):
+
+    def one(c, lam, nk, slide):
         b2 = _d(barrier, 2)(c.distance_from(x0, u), ct.dhat)
         n = c.normal_at(x0 + u)
-        out = out + (cloth.mass * ct.kappa * jnp.maximum(b2, 0.0))[:, None, None] * n[:, :, None] * n[:, None, :]
+        H = (cloth.mass * ct.kappa * jnp.maximum(b2, 0.0))[:, None, None] * n[:, :, None] * n[:, None, :]
         if c.frictional:
-            t = _tangential(ct, k, u)
+            t = _tangential(ct, slide, nk, u)
             y2 = dot(t, t)
-            nk = ct.normal[k]
             P = jnp.eye(3, dtype=u.dtype) - nk[:, :, None] * nk[:, None, :]
-            H = (2.0 * _d(f0, 1)(y2, ct.eps_h))[:, None, None] * P + (4.0 * _d(f0, 2)(y2, ct.eps_h))[:, None, None] * (
+            F = (2.0 * _d(f0, 1)(y2, ct.eps_h))[:, None, None] * P + (4.0 * _d(f0, 2)(y2, ct.eps_h))[:, None, None] * (
                 t[:, :, None] * t[:, None, :])
-            out = out + (c.friction * ct.lam[k])[:, None, None] * H
+            H = H + (c.friction * lam)[:, None, None] * F
+        return H
+
+    for i, members in runs(cloth.colliders):
+        out = out + jnp.sum(over(members, one, *_rows(ct, i, len(members))), axis=0)
     return out * free[:, :, None]
 
 
 def force_magnitudes(u, x0, cloth, ct: ContactTerms, free):
     """``(N,)`` sum of the barrier and friction force magnitudes at each particle (N)."""
     out = jnp.zeros(u.shape[:1], u.dtype)
-    for k, c in enumerate(cloth.colliders):
-        out = out - cloth.mass * ct.kappa * barrier_slope(c.distance_from(x0, u), ct.dhat)
+
+    def one(c, lam, nk, slide):
+        f = -cloth.mass * ct.kappa * barrier_slope(c.distance_from(x0, u), ct.dhat)
         if c.frictional:
-            t = _tangential(ct, k, u)
+            t = _tangential(ct, slide, nk, u)
             y2 = dot(t, t)
             f1 = 2.0 * jnp.sqrt(y2) * _d(f0, 1)(y2, ct.eps_h)  # d f0 / d|t|, in [0, 1]
-            out = out + c.friction * ct.lam[k] * f1
+            f = f + c.friction * lam * f1
+        return f
+
+    for i, members in runs(cloth.colliders):
+        out = out + jnp.sum(over(members, one, *_rows(ct, i, len(members))), axis=0)
     return out * free[:, 0]
 
 
@@ -207,7 +272,10 @@ def step_bound(u, dx, x0, cloth, free):
     """Largest safe step fraction along ``dx``: ``min(1, 0.9 * earliest time of impact)``."""
     x = x0 + u
     t = jnp.ones((), u.dtype)
-    for c in cloth.colliders:
-        toi = jnp.where(free[:, 0] > 0, c.time_of_impact(x, dx * free), jnp.inf)
-        t = jnp.minimum(t, 0.9 * jnp.min(toi))
+
+    def one(c):
+        return jnp.min(jnp.where(free[:, 0] > 0, c.time_of_impact(x, dx * free), jnp.inf))
+
+    for _, members in runs(cloth.colliders):
+        t = jnp.minimum(t, 0.9 * jnp.min(over(members, one)))
     return t
