@@ -23,6 +23,7 @@ class Iterate:
       terms: the spring terms at ``w`` (``_implicit.problem.SpringTerms``), which gave ``g``,
         ``grad`` and ``rel`` and give the next iteration's Hessian blocks.
       pairs: the self-contact pairs counted at ``w`` (``_self.terms.PairSet``), or ``None``.
+      others: ``()`` the contact, self-contact and wind terms of ``g`` at ``w`` (J).
     """
 
     w: jax.Array
@@ -31,6 +32,7 @@ class Iterate:
     rel: jax.Array
     terms: pr.SpringTerms
     pairs: PairSet | None = None
+    others: jax.Array | None = None
 
 
 @pytree_dataclass
