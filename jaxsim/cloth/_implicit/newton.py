@@ -140,7 +140,7 @@ def iteration(sv: NewtonSetup, s: NewtonState, rtol) -> NewtonState:
     """One Newton iteration: direction, line search, phase bookkeeping, stop test."""
     cur = s.iterate
     d, tried = search_direction(sv, s, cg_tolerance(sv, s, rtol))
-    t = line_search(sv, cur, d.dx, full=tried)
+    t = line_search(sv, cur.w, cur.g, cur.grad, d.dx, full=tried)
     step = t.alpha * t.dx  # dx is 0 on pins
     w_new = cur.w + step
     rel = pr.relative_gradient(t.at.grad, w_new, sv.at(t.at.pairs), t.at.terms)
@@ -152,7 +152,7 @@ def iteration(sv: NewtonSetup, s: NewtonState, rtol) -> NewtonState:
     ph = phase_step(s, tried, rel, ok)
     taken = ok & ~ph.rejected
     done = stop_test(sv, cur, step, w_new, rel, rtol) & taken & (ph.count == 0) | ~ok
-    new = _where(taken, Iterate(w_new, t.at.g, t.at.grad, rel, t.at.terms, t.at.pairs, t.at.others), ph.old)
+    new = _where(taken, Iterate(w_new, t.at.g, t.at.grad, rel, t.at.terms, t.at.pairs), ph.old)
     trace = s.trace
     if trace is not None:  # a failed step or phase is not taken
         dmax = jnp.max(jnp.abs(step))
@@ -193,7 +193,7 @@ def initial_state(sv: NewtonSetup, rtol, start=None, tight_first=False) -> Newto
     z = jnp.zeros((), sv.dtype)
     over0 = jnp.array(False) if e0.pairs is None else e0.pairs.overflow  # pairs missed at the start
     rel0 = pr.relative_gradient(e0.grad, w0, sv.at(e0.pairs), e0.terms)
-    at0 = Iterate(w0, e0.g, e0.grad, rel0, e0.terms, e0.pairs, e0.others)
+    at0 = Iterate(w0, e0.g, e0.grad, rel0, e0.terms, e0.pairs)
     return NewtonState(iterate=at0, guess=cg0,
                        it=jnp.int32(0), cg=jnp.int32(0), bt=jnp.int32(0), alpha=z, res=z,
                        indefinite=jnp.array(False), stationary_below=jnp.asarray(STATIONARY_REL, sv.dtype),

@@ -23,7 +23,6 @@ class Iterate:
       terms: the spring terms at ``w`` (``_implicit.problem.SpringTerms``), which gave ``g``,
         ``grad`` and ``rel`` and give the next iteration's Hessian blocks.
       pairs: the self-contact pairs counted at ``w`` (``_self.terms.PairSet``), or ``None``.
-      others: ``()`` the contact, self-contact and wind terms of ``g`` at ``w`` (J).
     """
 
     w: jax.Array
@@ -32,7 +31,6 @@ class Iterate:
     rel: jax.Array
     terms: pr.SpringTerms
     pairs: PairSet | None = None
-    others: jax.Array | None = None
 
 
 @pytree_dataclass

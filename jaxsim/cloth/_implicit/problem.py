@@ -238,10 +238,11 @@ def _aero_potential(w, p: StepProblem):
     return aero_.potential(p.aero, p.displacement(w), p.h)
 
 
-def other_potentials(w, p: StepProblem):
-    """``()`` the terms of ``g(w)`` beyond inertia and springs: contact, self-contact and
-    wind (J); 0 in a scene without them."""
-    g = jnp.zeros((), w.dtype)
+def objective(w, p: StepProblem, t: SpringTerms):
+    """``g(w)`` (J) from the spring terms ``t`` at ``w``."""
+    c = p.cloth
+    g = 0.5 / p.h**2 * jnp.sum(c.mass[:, None] * w * w)  # inertia, with gravity's work
+    g = g + jnp.sum(en.element_potential(t.s, c.stiffness, t.damp, p.d_over_h))
     if p.contact is not None:
         g = g + _contact_potential(w, p)
     if p.selfc is not None:
@@ -249,41 +250,6 @@ def other_potentials(w, p: StepProblem):
     if p.aero is not None:
         g = g + _aero_potential(w, p)
     return g
-
-
-def objective(w, p: StepProblem, t: SpringTerms):
-    """``g(w)`` (J) from the spring terms ``t`` at ``w``."""
-    c = p.cloth
-    g = 0.5 / p.h**2 * jnp.sum(c.mass[:, None] * w * w)  # inertia, with gravity's work
-    g = g + jnp.sum(en.element_potential(t.s, c.stiffness, t.damp, p.d_over_h))
-    if p.contact is not None or p.selfc is not None or p.aero is not None:
-        g = g + other_potentials(w, p)
-    return g
-
-
-#: The rounding allowed in :func:`change`'s decrease, in ulps of its terms' sizes.
-NOISE = 8
-
-
-def change(w, step, p: StepProblem, t0: SpringTerms, t1: SpringTerms, others0, others1):
-    """``(delta, noise)``: ``g(w + step) - g(w)`` as a sum of per-term differences, and the
-    size of its rounding (J).
-
-    Each particle's inertia changes by ``m/(2h^2) step . (2 w + step)`` and each spring's
-    potential by ``k/2 (s1 - s0)(s1 + s0)`` (and damping's alike), so what cancels between
-    the two points cancels term by term, before the sum: the difference of the two totals
-    rounds to ``eps |g|``, far above the decrease of a step near a solution in float32.
-    ``t0``, ``t1``: the spring terms at both points; ``others0``, ``others1``:
-    :func:`other_potentials` there (their difference is taken whole)."""
-    c = p.cloth
-    di = 0.5 / p.h**2 * c.mass[:, None] * step * (2.0 * w + step)
-    ds = 0.5 * c.stiffness * (t1.s - t0.s) * (t1.s + t0.s)
-    if t0.damp is not None:
-        ds = ds + 0.5 * p.d_over_h * (t1.damp - t0.damp) * (t1.damp + t0.damp)
-    delta = jnp.sum(di) + jnp.sum(ds) + (others1 - others0)
-    eps = jnp.finfo(w.dtype).eps
-    noise = NOISE * eps * (jnp.sum(jnp.abs(di)) + jnp.sum(jnp.abs(ds)) + jnp.abs(others0) + jnp.abs(others1))
-    return delta, noise
 
 
 def incremental_potential(w, p: StepProblem):

@@ -25,15 +25,12 @@ class Evaluation:
       terms: the spring terms at ``w`` (``problem.SpringTerms``).
       pairs: the self-contact pairs ``g`` counted (``_self.terms.PairSet``), ``None``
         without self-contact.
-      others: ``()`` the contact, self-contact and wind terms of ``g``
-        (``problem.other_potentials``; for the line search's per-term decrease).
     """
 
     g: jax.Array
     grad: jax.Array
     terms: pr.SpringTerms
     pairs: PairSet | None = None
-    others: jax.Array | None = None
 
 
 class NewtonSetup:
@@ -77,5 +74,4 @@ class NewtonSetup:
             pairs = find_pairs(self.p.selfc, self.p.positions(w))
         p = self.at(pairs)
         t = pr.spring_terms(w, p)
-        return Evaluation(pr.objective(w, p, t), pr.gradient(w, p, t) * self.free, t, pairs,
-                          pr.other_potentials(w, p))
+        return Evaluation(pr.objective(w, p, t), pr.gradient(w, p, t) * self.free, t, pairs)
