@@ -95,6 +95,7 @@ def min_distance(c: Cape, states) -> float:
 
 
 def cape_section(out: str, fast: bool, lines: list[str]) -> None:
+    import jax
     import numpy as np
 
     from .. import viz
@@ -105,8 +106,6 @@ def cape_section(out: str, fast: bool, lines: list[str]) -> None:
     (states, infos), compile_s, run_s = timed(lambda: run_cape(c), again=False)
     gap = min_distance(c, states)
     xs = np.concatenate([np.asarray(c.state.x)[None], np.asarray(states.x)])
-    import jax
-
     path = tuple(jax.tree.map(lambda a, b: np.concatenate([np.asarray(a)[None], np.asarray(b)]), c0, p)
                  for c0, p in zip(c.scene.colliders, c.colliders))
     viz.animate_surface(xs, c.triangles, os.path.join(out, "cape.gif"), colliders=path, stride=3 if fast else 4,
