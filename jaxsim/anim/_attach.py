@@ -110,7 +110,7 @@ def bone_local(motion: Motion, joint, points, frame: int = 0):
     if is_concrete(points):
         check_finite("points", check_shape("points", points, (None, 3)))
     x = jnp.asarray(points, motion.skeleton.offsets.dtype)
-    P, G = _fk(motion.skeleton.parents, _offsets(motion), motion.root_positions, motion.rotations)
+    P, G = _frames(motion, None)
     q = _quat.unstack(jnp.broadcast_to(G[frame, j], (x.shape[0], 4)), axis=-1)
     return _quat.stack(_quat.rotate(_quat.conj(q), _quat.unstack(x - P[frame, j], axis=-1)), axis=-1)
 
