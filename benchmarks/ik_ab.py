@@ -10,7 +10,7 @@ keeps every round, the median ratio and its spread.
 Cases: the 6-joint unit chain, 100k float32 targets, FABRIK and CCD, exactly 10 sweeps
 (the throughput benchmark's headline), unrolled and on the rolled joint loop; the free humanoid (hands and ankles), 10k sets,
 10 sweeps and tol 1e-4 with early exit; the humanoid with limits, 1000 sets, FABRIK and
-CCD and LM to tol 1e-4 (early exit).
+CCD and LM to tol 1e-4 (early exit), and LM with ``seeds=8``.
 
 Run: ``python benchmarks/ik_ab.py --baseline 93626e0 [--rounds 5]``; writes
 ``benchmarks/results/ik_ab.json``.
@@ -70,6 +70,9 @@ def cases(pkg, n_chain, n_sets):
         out[f"humanoid limits {s} tol 1e-4"] = (jax.jit(lambda t, s=s: ik.solve(HL, t, solver=s, effectors=eff,
                                                                                 max_iters=100, tol=1e-4,
                                                                                 early_exit=True)), TL[:m], m)
+    lm8 = ik.LevenbergMarquardt(100, 1e-4, seeds=8)
+    out["humanoid limits lm seeds=8 tol 1e-4"] = (jax.jit(lambda t: ik.solve(HL, t, solver=lm8, effectors=eff,
+                                                                            early_exit=True)), TL, 1000)
     return out
 
 

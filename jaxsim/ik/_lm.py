@@ -16,8 +16,10 @@ or with fewer residuals than parameters the same step as ``d = -J^T y``, ``(J J^
 IK is redundant, so ``J^T J`` is always singular: the damping makes the system
 positive definite (``lambda >= LAMBDA_MIN``, so its condition number stays below
 ``n / LAMBDA_MIN``), and the step is the damped least-change one (Levenberg 1944;
-Marquardt 1963; for IK Wampler 1986).  The trial pose is projected onto the joint
-limits; it is accepted if it lowers the cost (then ``lambda /= 3``), else rejected
+Marquardt 1963; for IK Wampler 1986).  The bounds the pose lies on that steepest descent
+would push it out of are held first (``_active_set``: a held hinge loses its column, a held
+ball joint keeps the motions along its bound), the trial pose is projected onto the joint
+limits, and it is accepted if it lowers the cost (then ``lambda /= 3``), else rejected
 (``lambda *= 4``).  Rejected trials count as iterations.  Like the sweep solvers it is a
 fixed-length ``lax.scan`` of masked no-ops after convergence (or the same loop as a
 ``while_loop`` with ``early_exit``), vmapped over the batch; a large batch with
@@ -36,19 +38,18 @@ import functools
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 from jax.scipy.linalg import cho_factor, cho_solve
 
 from .._dataclass import pytree_dataclass
 from .._geometry import quat as _quat
 from .._geometry.horn import best_rotation
-from ._projection import hinge_angle
+from ._active_set import hold_bounds
 from ._limb_start import limb_start
 from ._loop import masked_sweeps, refill_sweeps
 from ._pose import reachable_flags
 from ._result import IKResult
 from ._starts import SWIVELS, best_of
-from ._residual import Dofs, LMProblem, _dofs, _perturb, _pole_residuals, _residual_at, jacobian_at
+from ._residual import LMProblem, _dofs, _perturb, _pole_residuals, _residual_at, jacobian_at
 from ._stacked import angle_errors, apply_bounds, bounds, fk_stacked, project_stacked, take
 
 #: Bounds on the relative damping ``lambda``; the lower one is ``LAMBDA_MIN_EPS`` machine epsilons.
@@ -127,21 +128,6 @@ def spd_solve(A, b):
     return jnp.stack(x)
 
 
-def _held_hinges(L, d, dofs: Dofs, table, dtype):
-    """``(n,)`` bool: a hinge on a bound whose direction ``d`` (the steepest descent
-    ``-J^T r``) points out of its range: the active set of a projected Newton method
-    (Bertsekas 1982, §2), so one solve, without those columns, gives the step."""
-    held = jnp.zeros((dofs.n,), bool)
-    hc = dofs.hinge_cols
-    if not hc:
-        return held
-    js, cs = tuple(j for j, _ in hc), np.asarray([c for _, c in hc])
-    phi = hinge_angle(_quat.unstack(take(L, js, axis=0), axis=-1), _quat.unstack(take(table.axis, js, axis=0),
-                                                                                  axis=-1))
-    lo, hi, eps = take(table.lo, js, axis=0), take(table.hi, js, axis=0), 1e3 * jnp.finfo(dtype).eps
-    return held.at[cs].set(((phi <= lo + eps) & (d[cs] < 0)) | ((phi >= hi - eps) & (d[cs] > 0)))
-
-
 @pytree_dataclass
 class LMItem:
     """One target set in :func:`_loop.refill_sweeps`'s queue: its loop state and its problem."""
@@ -181,8 +167,8 @@ def _lm_sweep(s: LMState, prob: LMProblem, offsets, table, *, topo):
     dofs = _dofs(topo, table, prob.orients is not None)
     n = dofs.n
     Jac, r = jacobian_at(topo, s.positions, s.frames, prob, dofs, table)
-    if dofs.hinge_cols:  # a hinge on a bound that descent would push out of range is held
-        Jac = jnp.where(_held_hinges(s.rotations, -(Jac.T @ r), dofs, table, dtype), 0.0, Jac)
+    if table is not None:  # the bounds that descent would push the pose out of are held
+        Jac = hold_bounds(Jac, s.rotations, -(Jac.T @ r), dofs, table)
     # (J^T J + mu I)^-1 J^T = J^T (J J^T + mu I)^-1: the smaller of the two systems
     # (m rows against n parameters, static), the same step.
     m = Jac.shape[0]
