@@ -411,3 +411,18 @@ def test_track_keeps_limits_on_every_frame(kind):
     tr = ik.track(sk, np.linspace(T[0], T[1], 8), solver=kind, effectors=(3, 5), max_iters=20, max_step_angle=0.2)
     assert tr.rotations.shape == (8, 6, 4)
     assert float(jnp.max(ik.limit_violation(sk, tr.rotations))) <= 1e-6
+
+
+def test_spd_solve_unrolled_and_lapack_against_numpy():
+    """LM's linear solve, unrolled (up to ``UNROLLED_CHOLESKY_MAX`` unknowns) and by LAPACK
+    above, equals numpy's on random SPD systems, under ``vmap`` too."""
+    from jaxsim.ik._lm import UNROLLED_CHOLESKY_MAX, spd_solve
+
+    rng = np.random.default_rng(4)
+    for k in (1, 3, UNROLLED_CHOLESKY_MAX, UNROLLED_CHOLESKY_MAX + 1, 12):
+        M = rng.normal(size=(5, k, k))
+        A = M @ np.swapaxes(M, -1, -2) + 0.1 * np.eye(k)
+        b = rng.normal(size=(5, k))
+        want = np.linalg.solve(A, b[..., None])[..., 0]
+        np.testing.assert_allclose(jax.vmap(spd_solve)(jnp.asarray(A), jnp.asarray(b)), want, rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(spd_solve(jnp.asarray(A[0]), jnp.asarray(b[0])), want[0], rtol=1e-9, atol=1e-9)
