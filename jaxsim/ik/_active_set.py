@@ -62,8 +62,8 @@ def bound_normals(q, a):
     ``d`` moves ``b`` by ``R(q) (d x a)``: the swing's gradient is ``a x R(q)^T n / |a x b|``,
     ``n = (a . b) b - a``.  ``q (1, d / 2)`` is ``s`` turned by ``R(t) d`` before the twist, so
     the twist angle moves by ``d . a`` plus, to first order, ``(R(t) d) . (a x s_v) / s_w``: its
-    gradient is ``a + R(t)^T (a x s_v) / s_w``.  Returns ``(s, t, s_w * twist gradient,
-    |a x b| * swing gradient)``, all of it without inverse trigonometry."""
+    gradient is ``a + R(t)^T (a x s_v) / s_w``.  Returns ``(s, t, |a x b| * swing gradient,
+    s_w * twist gradient)`` (tuples, then ``(K, 3)`` arrays), without inverse trigonometry."""
     qc, t = _twist(q, a)
     sw = _quat.mul(qc, _quat.conj(t))
     sw = _quat.where(sw[0] < 0, _quat.scale(-1.0, sw), sw)
