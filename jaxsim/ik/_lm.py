@@ -97,9 +97,10 @@ def _aligned_root(topo, offsets, L, P, G, prob: LMProblem, moved):
 
 
 #: Systems up to this size are solved by :func:`spd_solve`'s unrolled Cholesky, larger ones by LAPACK.
-#: The humanoid's 12 x 12 system by LAPACK compiles 10-12% faster, at the same sets/s in the
-#: work queue (``ik_ab_humanoid_limits_lm_cholesky.json``) and about 7% fewer vmapped without
-#: it (docs/notebook.md, "LM's active set on ball joints").
+#: The humanoid's 12 x 12 system by LAPACK compiles 10-20% faster, at the same sets/s with
+#: limits in the work queue (``ik_ab_humanoid_limits_lm_cholesky.json``), about 10% fewer on
+#: the free humanoid and 7% fewer vmapped without the queue (docs/notebook.md, "LM's active
+#: set on ball joints").
 UNROLLED_CHOLESKY_MAX = 8
 
 
