@@ -1,5 +1,5 @@
 """LM's active set on ball joints (``_active_set.tangent_balls``): the bound normals against autodiff,
-the held columns, and what it buys on the limited humanoid."""
+and the held columns (what it buys on the limited humanoid: ``test_ik_limb_start.py``)."""
 
 import jax
 import jax.numpy as jnp
@@ -39,8 +39,9 @@ def test_bound_normals_are_the_angles_gradients():
 
 
 def _arm_on_its_cone(azimuth):
-    """A two-bone chain whose root (cone 0.5 rad, twist +-0.3 rad about x) is swung 0.5 rad
-    toward ``azimuth`` (on the cone), and a target: ``(skeleton, table, L (3, 4), P, G, prob)``."""
+    """A two-bone chain whose root (cone 0.5 rad, twist +-0.3 rad about x) is turned 0.5 rad
+    about the axis ``(0, cos azimuth, sin azimuth)`` (onto its cone): ``(skeleton, table,
+    L (3, 4), P (3, 3), G (3, 4))``."""
     sk = ik.Chain(np.array([[0.0, 0, 0], [1.0, 0, 0], [1.0, 0, 0]]),
                   limits=(ik.SwingTwist(0.5, (-0.3, 0.3)), None, None))
     axis = np.array([0.0, np.cos(azimuth), np.sin(azimuth)])
@@ -56,7 +57,7 @@ def test_a_ball_joint_on_its_cone_steps_along_it():
     (the columns' product with the swing normal is 0, the rest unchanged); descent that pulls
     it inside leaves the Jacobian as it was."""
     for target, held in (((0.0, 3.0, 0.0), True), ((2.0, 0.0, 0.0), False)):
-        sk, table, L, P, G = _arm_on_its_cone(np.pi / 2)  # swung toward +z
+        sk, table, L, P, G = _arm_on_its_cone(np.pi / 2)  # turned about z: the bone swung toward +y
         prob = LMProblem(jnp.asarray([target]), jnp.ones(1))
         topo = topology(sk.parents, (2,))
         dofs = _dofs(topo, table, False)

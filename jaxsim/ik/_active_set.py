@@ -21,10 +21,6 @@ from ._projection import _twist, hinge_angle
 from ._residual import Dofs
 from ._stacked import take
 
-#: Ball joints held on their swing or twist bounds step along them (:func:`tangent_balls`).
-BALL_ACTIVE_SET = True
-
-
 def hold_bounds(Jac, L, g, dofs: Dofs, table):
     """``Jac (m, n)`` at the pose ``L (J, 4)`` without the motions that the steepest descent
     ``g (n,)`` would take out of the limits: held hinges' columns zeroed, held ball joints'
@@ -32,9 +28,7 @@ def hold_bounds(Jac, L, g, dofs: Dofs, table):
     dtype = Jac.dtype
     if dofs.hinge_cols:
         Jac = jnp.where(held_hinges(L, g, dofs, table, dtype), 0.0, Jac)
-    if BALL_ACTIVE_SET:
-        Jac = tangent_balls(Jac, L, g, dofs, table, dtype)
-    return Jac
+    return tangent_balls(Jac, L, g, dofs, table, dtype)
 
 
 def held_hinges(L, d, dofs: Dofs, table, dtype):
