@@ -10,7 +10,8 @@ current time`` (above 1: the current code is faster).  The end states are compar
 Cases (float64, ``benchmarks/cloth_step.py``'s scenes): A the lab cloth (CG, Cholesky,
 explicit); B 32x32 and B 128x128 (CG, on planes); C 32x32 k = 1e5 (two-level CG, planes and grid-block
 aggregates); the tablecloth mesh (CG and two-level CG: the particle layout, gathers and
-voxel aggregates; pinned at its centre and one edge); B 16x16 over a sphere (contact); ``batch_rollout`` of 4 B 16x16 scenes.
+voxel aggregates; pinned at its centre and one edge); B 16x16 over a sphere (contact); two 8x8 layers over a
+sphere with self-contact; ``batch_rollout`` of 4 B 16x16 scenes.
 
 Run: ``python benchmarks/cloth_ab.py --baseline REV [--rounds 5]``; writes
 ``benchmarks/results/cloth_ab.json``.
@@ -35,6 +36,16 @@ from _common import ab_arguments, baseline_package, run_once, write  # noqa: E40
 import jaxsim  # noqa: E402
 
 
+def layers(C, n=8):
+    """Two ``n x n`` layers 3 cm apart over a sphere, with self-contact (float64)."""
+    top = C.grid(n, 0.6 / n, origin=(-0.3, 0.63, -0.3), dtype=np.float64).rest
+    low = C.grid(n, 0.6 / n, origin=(-0.27, 0.6, -0.28), dtype=np.float64).rest
+    V = np.concatenate([np.asarray(top), np.asarray(low)])
+    T = np.concatenate([C.grid_triangles(n), C.grid_triangles(n) + (n + 1) ** 2])
+    return C.from_mesh(V, T, stiffness=300.0, density=0.3, dtype=np.float64, self_contact=True,
+                       colliders=(C.Sphere(np.array([0.0, 0.25, 0.0]), 0.25),))
+
+
 def cases(pkg):
     """``{name: (jitted rollout of a state, the state)}`` for one package."""
     C = pkg.cloth
@@ -54,7 +65,8 @@ def cases(pkg):
              ("B 32x32 CG", b32, cg, 1 / 60, 10), ("B 128x128 CG", b128, cg, 1 / 60, 5),
              ("C 32x32 k=1e5 two-level", stiff, tl, 1 / 30, 5),
              ("tablecloth mesh CG", mesh, cg, 1 / 60, 10), ("tablecloth mesh two-level", mesh, tl, 1 / 60, 10),
-             ("B 16x16 on a sphere", sphere, cg, 1 / 60, 10)]
+             ("B 16x16 on a sphere", sphere, cg, 1 / 60, 10),
+             ("2 x 8x8 layers self-contact on a sphere", layers(C), C.ImplicitEuler(), 1 / 60, 20)]
     for name, c, integ, dt, n in table:
         s0 = C.State.at_rest(c)
         if not c.colliders:  # start from a moving, deformed state

@@ -80,7 +80,8 @@ class LMState:
 def _aligned_root(topo, offsets, L, P, G, prob: LMProblem, moved):
     """The start ``L (J, 4)`` (with its FK ``P (J, 3)``, ``G (J, 4)``) with its root turned by
     Horn's (1987) rotation that best aligns the effectors (seen from the root) with their
-    targets, projected onto the root's limit, where that lowers the cost: ``(L, P, G)``.
+    targets, projected onto the root's limit (``moved``: the root's ``Bounds`` or ``None``), where
+    that lowers the cost: ``(L, P, G)``.
     A whole-body turn is the motion LM finds worst from a far start (the limited humanoid's
     unconverged sets were off at every effector).  Not for one effector: Horn's rotation is
     then the shortest arc, which would turn a straight chain back onto its target's line,
@@ -153,7 +154,7 @@ def _lm_start(offsets, targets, local0, weights, table, orients, orient_weights,
     L0 = project_stacked(table, local0)
     P0, G0 = fk_stacked(topo.parents, offsets, L0)
     if len(topo.effectors) > 1 and dofs.joints and dofs.joints[0] == 0 and not dofs.hinge[0]:
-        L0, P0, G0 = _aligned_root(topo, offsets, L0, P0, G0, prob, bounds(table, dofs.joints))
+        L0, P0, G0 = _aligned_root(topo, offsets, L0, P0, G0, prob, bounds(table, (0,)))
     r0, e0 = _residual_at(topo, P0, G0, prob)
     L1 = limb_start(topo, table, L0, P0, G0, targets, swivel, prob) if limbs is not False else L0
     if L1 is not L0:
@@ -211,12 +212,12 @@ def lm_one(offsets, targets, local0, weights, tol, table, orients, orient_weight
         state, iters, errs = masked_sweeps(lambda s: _lm_sweep(s, prob, offsets, table, topo=topo), s0,
                                            _quat.safe_sqrt(e0), jnp.zeros((), jnp.int32), e0 <= tol * tol, tol,
                                            max_iters=max_iters, trace=trace, early_exit=early_exit)
-    return _result(topo, offsets, state.rotations, prob, tol, iters, errs)
+    return _result(topo, offsets, state, prob, tol, iters, errs)
 
 
-def _result(topo, offsets, L, prob: LMProblem, tol, iters, errs) -> IKResult:
-    """The ``IKResult`` of one solve's final rotations ``L (J, 4)`` (``_pose.finish``'s fields)."""
-    P, G = fk_stacked(topo.parents, offsets, L)
+def _result(topo, offsets, s: LMState, prob: LMProblem, tol, iters, errs) -> IKResult:
+    """The ``IKResult`` of one solve's final state (``_pose.finish``'s fields; its FK is the state's)."""
+    L, P, G = s.rotations, s.positions, s.frames
     err = jnp.sqrt(jnp.sum((take(P, topo.effectors, axis=0) - prob.targets) ** 2, axis=-1))
     ok = jnp.all(err <= tol)
     ang = None
@@ -311,4 +312,4 @@ def run_lm(offsets, targets, local0, weights, tol, table, orients, orient_weight
 
     out, iters = refill_sweeps(jax.vmap(sweep), items0, items0.state.sq_error, tol, max_iters=max_iters,
                                lanes=queue_lanes(N), seeds=K, restart=restart, stall=STALL)
-    return jax.vmap(lambda L, p, k: _result(topo, offsets, L, p, tol, k, None))(out.state.rotations, out.prob, iters)
+    return jax.vmap(lambda s, p, k: _result(topo, offsets, s, p, tol, k, None))(out.state, out.prob, iters)

@@ -143,7 +143,7 @@ def iteration(sv: NewtonSetup, s: NewtonState, rtol) -> NewtonState:
     t = line_search(sv, cur.w, cur.g, cur.grad, d.dx, full=tried)
     step = t.alpha * t.dx  # dx is 0 on pins
     w_new = cur.w + step
-    rel = pr.relative_gradient(t.at.grad, w_new, sv.at(t.at.pairs), t.at.terms)
+    rel = pr.relative_gradient(t.at.grad, w_new, sv.at(t.at.pairs), t.at.terms, t.at.parts)
     ok = jnp.all(jnp.isfinite(w_new)) & jnp.isfinite(t.at.g) & jnp.all(jnp.isfinite(t.at.grad))
     overflow = s.overflow
     if overflow is not None:  # pairs were missed on this motion: it is not taken
@@ -167,6 +167,33 @@ def iteration(sv: NewtonSetup, s: NewtonState, rtol) -> NewtonState:
                        anchor=ph.anchor, trace=trace, overflow=overflow)
 
 
+def _start_or_labs(sv: NewtonSetup, wg, w0):
+    """``(w, evaluation, better)``: the start ``wg`` where ``g`` is lower there than at the lab's
+    start ``w0`` (``better``; NaN never wins), else ``w0``.  Without moved pins ``g(w0)``
+    costs no pass over the springs (``problem.start_objective``), and ``w0`` is evaluated
+    only where ``wg`` loses; with them (they stretch their springs at ``w0``) both are.
+    The two evaluations are passes of one loop: one evaluation in the compiled program."""
+    p = sv.p
+    lab_g = pr.start_objective(p) if p.pin_to is None else None
+
+    def body(c):
+        k, _, e_g, _ = c
+        e = sv.evaluate(jnp.where(k == 0, wg, w0))
+        if lab_g is not None:  # the lab's start is evaluated (pass 1) only where the start lost
+            return k + 1, e, e, (k == 0) & (e.g < lab_g)
+        e_g = _where(k == 0, e, e_g)  # pass 0: the start's, kept for pass 1's comparison
+        better = (k == 1) & (e_g.g < e.g)
+        return k + 1, _where(better, e_g, e), e_g, better
+
+    def more(c):
+        k, _, _, better = c
+        return (k == 0) | ((k == 1) & ~better) if lab_g is not None else k < 2
+
+    blank = jax.tree_util.tree_map(lambda x: jnp.zeros(x.shape, x.dtype), jax.eval_shape(sv.evaluate, w0))
+    _, e, _, better = lax.while_loop(more, body, (jnp.int32(0), blank, blank, jnp.array(False)))
+    return jnp.where(better, wg, w0), e, better
+
+
 def initial_state(sv: NewtonSetup, rtol, start=None, tight_first=False) -> NewtonState:
     """The loop's first carry: the lab's start ``w = -y`` (or the push-out off a moving
     collider), or ``start`` where ``g`` is lower there (NaN never wins; ``g`` at the lab's
@@ -179,20 +206,12 @@ def initial_state(sv: NewtonSetup, rtol, start=None, tight_first=False) -> Newto
         cg0 = h * p.v0 * free  # the first direction is about the displacement h v^n
         e0 = sv.evaluate(w0)
     else:
-        wg = jnp.where(free > 0, start, w0)
-        eg = sv.evaluate(wg)
-        if p.pin_to is None:
-            better = eg.g < pr.start_objective(p)
-            w0, e0 = lax.cond(better, lambda: (wg, eg), lambda: (w0, sv.evaluate(w0)))
-        else:  # moved pins stretch their springs at the lab's start: no shortcut for its g
-            e_lab = sv.evaluate(w0)
-            better = eg.g < e_lab.g
-            w0, e0 = jax.tree_util.tree_map(lambda a, b: jnp.where(better, a, b), (wg, eg), (w0, e_lab))
+        w0, e0, better = _start_or_labs(sv, jnp.where(free > 0, start, w0), w0)
         cg0 = jnp.where(better, 0.0, h * p.v0 * free)
         tight = better & tight_first
     z = jnp.zeros((), sv.dtype)
     over0 = jnp.array(False) if e0.pairs is None else e0.pairs.overflow  # pairs missed at the start
-    rel0 = pr.relative_gradient(e0.grad, w0, sv.at(e0.pairs), e0.terms)
+    rel0 = pr.relative_gradient(e0.grad, w0, sv.at(e0.pairs), e0.terms, e0.parts)
     at0 = Iterate(w0, e0.g, e0.grad, rel0, e0.terms, e0.pairs)
     return NewtonState(iterate=at0, guess=cg0,
                        it=jnp.int32(0), cg=jnp.int32(0), bt=jnp.int32(0), alpha=z, res=z,

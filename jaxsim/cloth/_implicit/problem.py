@@ -226,29 +226,66 @@ def spring_terms(w, p: StepProblem) -> SpringTerms:
     return SpringTerms(e, s, dpsi, along, across, None if p.e0 is None else dot(p.e0, dd))
 
 
+@pytree_dataclass
+class ContactParts:
+    """The colliders', self-contact's and wind's terms of ``g`` at one ``w``, from one pass
+    (:func:`contact_parts`).
+
+    Attributes:
+      value: ``()`` their potentials (J).
+      grad: ``(N, 3)`` their gradient (N).
+      scale: ``(N,)`` the sizes of their forces at each particle (N; :func:`force_scale`).
+    """
+
+    value: jax.Array
+    grad: jax.Array
+    scale: jax.Array
+
+
 def _contact_potential(w, p: StepProblem):
     return ct.potential(p.displacement(w), p.x0, p.cloth, p.contact, p.free)
-
-
-def _self_potential(w, p: StepProblem):
-    return sc.potential(p.selfc, p.positions(w), p.free)
 
 
 def _aero_potential(w, p: StepProblem):
     return aero_.potential(p.aero, p.displacement(w), p.h)
 
 
-def objective(w, p: StepProblem, t: SpringTerms):
-    """``g(w)`` (J) from the spring terms ``t`` at ``w``."""
+def _others(w, p: StepProblem):
+    """``(value (J), force sizes (N,))`` of the colliders', self-contact's and wind's terms."""
+    c, v = p.cloth, jnp.zeros((), w.dtype)
+    f = jnp.zeros((c.num_particles,), w.dtype)
+    if p.contact is not None:
+        v = v + _contact_potential(w, p)
+        f = f + ct.force_magnitudes(p.displacement(w), p.x0, c, p.contact, p.free)
+    if p.selfc is not None:
+        e, fs = sc.potential_and_forces(p.selfc, p.positions(w), p.free)
+        v, f = v + e, f + fs
+    if p.aero is not None:
+        v = v + _aero_potential(w, p)
+        f = f + aero_.force_magnitudes(p.aero, p.displacement(w), p.h, c.num_particles)
+    return v, f
+
+
+def contact_parts(w, p: StepProblem) -> ContactParts | None:
+    """:class:`ContactParts` at ``w (N, 3)``, or ``None`` for a scene with springs only.  One
+    ``jax.value_and_grad``: the pairs' distances are computed once for the value, the
+    gradient and the force sizes."""
+    if p.contact is None and p.selfc is None and p.aero is None:
+        return None
+    (v, f), g = jax.value_and_grad(_others, has_aux=True)(w, p)
+    return ContactParts(v, g, f)
+
+
+def objective(w, p: StepProblem, t: SpringTerms, parts: ContactParts | None = None):
+    """``g(w)`` (J) from the spring terms ``t`` at ``w`` (and :func:`contact_parts` at ``w``
+    when already computed)."""
     c = p.cloth
     g = 0.5 / p.h**2 * jnp.sum(c.mass[:, None] * w * w)  # inertia, with gravity's work
     g = g + jnp.sum(en.element_potential(t.s, c.stiffness, t.damp, p.d_over_h))
-    if p.contact is not None:
-        g = g + _contact_potential(w, p)
-    if p.selfc is not None:
-        g = g + _self_potential(w, p)
-    if p.aero is not None:
-        g = g + _aero_potential(w, p)
+    if parts is not None:
+        return g + parts.value
+    if p.contact is not None or p.selfc is not None or p.aero is not None:
+        g = g + _others(w, p)[0]
     return g
 
 
@@ -272,31 +309,28 @@ def start_objective(p: StepProblem):
     return 0.5 / p.h**2 * jnp.sum(c.mass[:, None] * y * y) + jnp.sum(en.spring_potential(p.s0, c.stiffness))
 
 
-def gradient(w, p: StepProblem, t: SpringTerms):
+def gradient(w, p: StepProblem, t: SpringTerms, parts: ContactParts | None = None):
     """``grad g(w)`` ``(N, 3)`` (N) from the spring terms ``t`` at ``w``: inertia plus the
     per-spring forces ``psi'(s) e (+ (d/h)(e0 . dd) e0)`` summed at both ends (no
-    scatter: ``_layout``), plus the contact terms' ``jax.grad``."""
+    scatter: ``_layout``), plus the contact terms' ``jax.grad`` (``parts``:
+    :func:`contact_parts` at ``w`` when already computed)."""
     c = p.cloth
     f = t.dpsi[:, None] * t.e
     if t.damp is not None:
         f = f + (p.d_over_h * t.damp)[:, None] * p.e0
     out = c.mass[:, None] / p.h**2 * w + p.sum(materialized(f))
-    if p.contact is not None:
-        out = out + jax.grad(_contact_potential)(w, p)
-    if p.selfc is not None:
-        out = out + jax.grad(_self_potential)(w, p)
-    if p.aero is not None:
-        out = out + jax.grad(_aero_potential)(w, p)
-    return out
+    parts = contact_parts(w, p) if parts is None else parts
+    return out if parts is None else out + parts.grad
 
 
-def force_scale(w, p: StepProblem, t: SpringTerms | None = None):
+def force_scale(w, p: StepProblem, t: SpringTerms | None = None, parts: ContactParts | None = None):
     """``(N,)`` size of the terms that make up ``grad g`` at each particle (N).
 
     Inertia ``m/h^2 |u - h v^n|`` (``u - h v^n = w + h^2 g``) plus gravity ``m |g|`` plus
     the magnitudes of the spring (and damping) forces and of the contact forces acting on
     the particle.  The gradient is judged small relative to the largest of these, which is
-    what float rounding can resolve.  ``t``: the spring terms at ``w`` when already computed.
+    what float rounding can resolve.  ``t``, ``parts``: the spring terms and
+    :func:`contact_parts` at ``w`` when already computed.
     """
     c = p.cloth
     t = spring_terms(w, p) if t is None else t
@@ -306,20 +340,18 @@ def force_scale(w, p: StepProblem, t: SpringTerms | None = None):
     m = c.mass
     inertia = m / p.h**2 * en._length(w + p.h**2 * c.gravity)
     scale = inertia + m * en._length(c.gravity) + p.sum(materialized(f), signed=False)
-    if p.contact is not None:
-        scale = scale + ct.force_magnitudes(p.displacement(w), p.x0, c, p.contact, p.free)
-    if p.selfc is not None:
-        scale = scale + sc.force_magnitudes(p.selfc, p.positions(w), p.free)
-    if p.aero is not None:
-        scale = scale + aero_.force_magnitudes(p.aero, p.displacement(w), p.h, c.num_particles)
+    if parts is not None:
+        return scale + parts.scale
+    if p.contact is not None or p.selfc is not None or p.aero is not None:
+        scale = scale + _others(w, p)[1]
     return scale
 
 
-def relative_gradient(gvec, w, p: StepProblem, t: SpringTerms | None = None):
+def relative_gradient(gvec, w, p: StepProblem, t: SpringTerms | None = None, parts: ContactParts | None = None):
     """``max_i |grad_i g| / max_i scale_i`` over free particles (dimensionless, never NaN)."""
     free = p.free[:, 0] > 0
     gmax = jnp.max(jnp.where(free, en._length(gvec), 0.0))
-    smax = jnp.max(jnp.where(free, force_scale(w, p, t), 0.0))
+    smax = jnp.max(jnp.where(free, force_scale(w, p, t, parts), 0.0))
     rel = gmax / jnp.maximum(smax, tiny(w.dtype))
     return jnp.where(jnp.isnan(rel), jnp.inf, rel)
 

@@ -25,12 +25,15 @@ class Evaluation:
       terms: the spring terms at ``w`` (``problem.SpringTerms``).
       pairs: the self-contact pairs ``g`` counted (``_self.terms.PairSet``), ``None``
         without self-contact.
+      parts: the colliders', self-contact's and wind's terms (``problem.ContactParts``),
+        ``None`` for a scene with springs only.
     """
 
     g: jax.Array
     grad: jax.Array
     terms: pr.SpringTerms
     pairs: PairSet | None = None
+    parts: pr.ContactParts | None = None
 
 
 class NewtonSetup:
@@ -73,5 +76,5 @@ class NewtonSetup:
         if self.p.selfc is not None and pairs is None:
             pairs = find_pairs(self.p.selfc, self.p.positions(w))
         p = self.at(pairs)
-        t = pr.spring_terms(w, p)
-        return Evaluation(pr.objective(w, p, t), pr.gradient(w, p, t) * self.free, t, pairs)
+        t, parts = pr.spring_terms(w, p), pr.contact_parts(w, p)
+        return Evaluation(pr.objective(w, p, t, parts), pr.gradient(w, p, t, parts) * self.free, t, pairs, parts)

@@ -174,27 +174,28 @@ def _kinds(s: PairSet, x, free):
         yield kind, ids, moves, _stand_in(x[ids], moves)
 
 
-def potential(sc: SelfContact, x, free) -> jax.Array:
-    """The self-contact barrier (J) at positions ``x (N, 3)``; ``free (N, 1)`` (a pair of
-    pinned particles only adds a constant, left out)."""
+def potential_and_forces(sc: SelfContact, x, free):
+    """``(barrier (J), forces (N,))`` at positions ``x (N, 3)``; ``free (N, 1)``.
+
+    The self-contact barrier (a pair of pinned particles only adds a constant, left out),
+    and the sizes of the pairs' barrier forces at each particle (N): each pair's
+    ``|w b'(d)|`` at its four particles (a bound: ``|grad d| <= 1`` per particle), zero on
+    pins.  One pass over the pairs' distances serves both (and, under ``jax.value_and_grad``,
+    the gradient too: ``problem.contact_parts``)."""
     s = current(sc, x)
     total = jnp.zeros((), x.dtype)
-    for kind, ids, moves, X in _kinds(s, x, free):
-        e = _pair_energy(sc, kind, X, ids)
-        total = total + jnp.sum(jnp.where(moves, e, 0.0))
-    return total
-
-
-def force_magnitudes(sc: SelfContact, x, free) -> jax.Array:
-    """``(N,)`` the sizes of the pairs' barrier forces at each particle (N): each pair's
-    ``|w b'(d)|`` at its four particles (a bound: ``|grad d| <= 1`` per particle)."""
-    s = current(sc, x)
     out = jnp.zeros(x.shape[:1], x.dtype)
     for kind, ids, moves, X in _kinds(s, x, free):
         d, w = _pair_distance(sc, kind, X, ids)
+        total = total + jnp.sum(jnp.where(moves, w * barrier(d, sc.dhat), 0.0))
         f = jnp.where(moves, -w * barrier_slope(d, sc.dhat), 0.0)
         out = out.at[ids].add(jnp.broadcast_to(f[:, None], ids.shape))
-    return out * free[:, 0]
+    return total, out * free[:, 0]
+
+
+def potential(sc: SelfContact, x, free) -> jax.Array:
+    """The self-contact barrier (J) at positions ``x (N, 3)`` (:func:`potential_and_forces`)."""
+    return potential_and_forces(sc, x, free)[0]
 
 
 def blocks(sc: SelfContact, x, free) -> RankOne:
