@@ -193,11 +193,6 @@ def potential_and_forces(sc: SelfContact, x, free):
     return total, out * free[:, 0]
 
 
-def potential(sc: SelfContact, x, free) -> jax.Array:
-    """The self-contact barrier (J) at positions ``x (N, 3)`` (:func:`potential_and_forces`)."""
-    return potential_and_forces(sc, x, free)[0]
-
-
 def blocks(sc: SelfContact, x, free) -> RankOne:
     """The pairs' Hessian blocks at ``x (N, 3)``, in the Gauss–Newton form ``c g g^T``
     (``_rank_one.RankOne``, rank one and PSD).
