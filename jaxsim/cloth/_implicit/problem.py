@@ -36,6 +36,7 @@ from .._layout import Layout, layout_of
 from .._model.scene import Cloth
 from .._self import terms as sc
 from .._vec import dot
+from .parts import ContactParts, contact_parts, others  # noqa: F401  (ContactParts, contact_parts: as ``problem``'s)
 
 
 def free_mask(cloth: Cloth, dtype) -> jax.Array:
@@ -117,6 +118,11 @@ class StepProblem:
         wind = aero_.build(cloth, x0, v0) if cloth.aero else None
         return StepProblem(cloth, layout, x0, v0, h, d0, l0, l0 - cloth.rest_length,
                            h * layout.diff(cloth.springs, v0), e0, contact, selfc, pins, wind)
+
+    @property
+    def has_others(self) -> bool:
+        """Terms besides inertia and springs: colliders, self-contact or wind (``parts``)."""
+        return self.contact is not None or self.selfc is not None or self.aero is not None
 
     @property
     def touches(self) -> bool:
@@ -226,56 +232,6 @@ def spring_terms(w, p: StepProblem) -> SpringTerms:
     return SpringTerms(e, s, dpsi, along, across, None if p.e0 is None else dot(p.e0, dd))
 
 
-@pytree_dataclass
-class ContactParts:
-    """The colliders', self-contact's and wind's terms of ``g`` at one ``w``, from one pass
-    (:func:`contact_parts`).
-
-    Attributes:
-      value: ``()`` their potentials (J).
-      grad: ``(N, 3)`` their gradient (N).
-      scale: ``(N,)`` the sizes of their forces at each particle (N; :func:`force_scale`).
-    """
-
-    value: jax.Array
-    grad: jax.Array
-    scale: jax.Array
-
-
-def _contact_potential(w, p: StepProblem):
-    return ct.potential(p.displacement(w), p.x0, p.cloth, p.contact, p.free)
-
-
-def _aero_potential(w, p: StepProblem):
-    return aero_.potential(p.aero, p.displacement(w), p.h)
-
-
-def _others(w, p: StepProblem):
-    """``(value (J), force sizes (N,))`` of the colliders', self-contact's and wind's terms."""
-    c, v = p.cloth, jnp.zeros((), w.dtype)
-    f = jnp.zeros((c.num_particles,), w.dtype)
-    if p.contact is not None:
-        v = v + _contact_potential(w, p)
-        f = f + ct.force_magnitudes(p.displacement(w), p.x0, c, p.contact, p.free)
-    if p.selfc is not None:
-        e, fs = sc.potential_and_forces(p.selfc, p.positions(w), p.free)
-        v, f = v + e, f + fs
-    if p.aero is not None:
-        v = v + _aero_potential(w, p)
-        f = f + aero_.force_magnitudes(p.aero, p.displacement(w), p.h, c.num_particles)
-    return v, f
-
-
-def contact_parts(w, p: StepProblem) -> ContactParts | None:
-    """:class:`ContactParts` at ``w (N, 3)``, or ``None`` for a scene with springs only.  One
-    ``jax.value_and_grad``: the pairs' distances are computed once for the value, the
-    gradient and the force sizes."""
-    if p.contact is None and p.selfc is None and p.aero is None:
-        return None
-    (v, f), g = jax.value_and_grad(_others, has_aux=True)(w, p)
-    return ContactParts(v, g, f)
-
-
 def objective(w, p: StepProblem, t: SpringTerms, parts: ContactParts | None = None):
     """``g(w)`` (J) from the spring terms ``t`` at ``w`` (and :func:`contact_parts` at ``w``
     when already computed)."""
@@ -284,8 +240,8 @@ def objective(w, p: StepProblem, t: SpringTerms, parts: ContactParts | None = No
     g = g + jnp.sum(en.element_potential(t.s, c.stiffness, t.damp, p.d_over_h))
     if parts is not None:
         return g + parts.value
-    if p.contact is not None or p.selfc is not None or p.aero is not None:
-        g = g + _others(w, p)[0]
+    if p.has_others:
+        g = g + others(w, p)[0]
     return g
 
 
@@ -342,8 +298,8 @@ def force_scale(w, p: StepProblem, t: SpringTerms | None = None, parts: ContactP
     scale = inertia + m * en._length(c.gravity) + p.sum(materialized(f), signed=False)
     if parts is not None:
         return scale + parts.scale
-    if p.contact is not None or p.selfc is not None or p.aero is not None:
-        scale = scale + _others(w, p)[1]
+    if p.has_others:
+        scale = scale + others(w, p)[1]
     return scale
 
 

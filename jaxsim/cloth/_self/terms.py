@@ -181,7 +181,7 @@ def potential_and_forces(sc: SelfContact, x, free):
     and the sizes of the pairs' barrier forces at each particle (N): each pair's
     ``|w b'(d)|`` at its four particles (a bound: ``|grad d| <= 1`` per particle), zero on
     pins.  One pass over the pairs' distances serves both (and, under ``jax.value_and_grad``,
-    the gradient too: ``problem.contact_parts``)."""
+    the gradient too: ``_implicit.parts.contact_parts``)."""
     s = current(sc, x)
     total = jnp.zeros((), x.dtype)
     out = jnp.zeros(x.shape[:1], x.dtype)
