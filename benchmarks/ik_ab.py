@@ -9,7 +9,7 @@ keeps every round, the median ratio and its spread.
 
 Cases: the 6-joint unit chain, 100k float32 targets, FABRIK and CCD, exactly 10 sweeps
 (the throughput benchmark's headline), unrolled and on the rolled joint loop; the free humanoid (hands and ankles), 10k sets,
-10 sweeps and tol 1e-4 with early exit; the humanoid with limits, 1000 sets, FABRIK and
+10 sweeps and tol 1e-4 with early exit, and LM to tol 1e-4 on 1000 of its sets; the humanoid with limits, 1000 sets, FABRIK and
 CCD and LM to tol 1e-4 (early exit), and LM with ``seeds=8``.
 
 Run: ``python benchmarks/ik_ab.py --baseline 93626e0 [--rounds 5]``; writes
@@ -63,6 +63,8 @@ def cases(pkg, n_chain, n_sets):
                                                                           tol=0.0)), T, n_sets)
         out[f"humanoid {s} tol 1e-4"] = (jax.jit(lambda t, s=s: ik.solve(H, t, solver=s, effectors=eff, max_iters=100,
                                                                          tol=1e-4, early_exit=True)), T, n_sets)
+    out["humanoid lm tol 1e-4"] = (jax.jit(lambda t: ik.solve(H, t, solver="lm", effectors=eff, max_iters=100, tol=1e-4,
+                                                              early_exit=True)), T[:1000], 1000)
     HL = ik.humanoid(np.float32)
     R = ik.project_limits(HL, random_poses(np.random.default_rng(2), (1000, 24)))
     TL = jnp.asarray(np.asarray(ik.fk(HL, R).positions)[:, eff])

@@ -27,7 +27,7 @@ from ._loop import run_plan
 from ._pose import OrientTargets, batched, bone_lengths, effector_sq_errors, finish, reachable_flags
 from ._result import IKResult
 from ._settings import CCD, FABRIK
-from ._symmetry import break_symmetry_chain, break_symmetry_stacked, break_symmetry_tree
+from ._symmetry import bend_straight, break_symmetry_chain, break_symmetry_stacked
 
 #: Per settings type, the module that lays out its sweeps (``chain_plan``, ``tree_plan``).
 PLANS = {FABRIK: _fabrik, CCD: _ccd}
@@ -132,15 +132,13 @@ def run_chain(offsets, target, local0, tol, *, alg, max_iters, unroll, trace, ea
 
 @functools.partial(jax.jit, static_argnames=("topo",))
 def bent_start(offsets, targets, local0, tol, *, topo):
-    """``(J, 4, *B)`` start rotations with straight branches on their targets' lines bent
-    (``_symmetry.break_symmetry_tree``).  Compiled apart from the sweeps: inside the same
-    program it doubles their compile time."""
-    B = targets.shape[2:]
-    L0 = _s(_quat.renormalize(_quat.unstack(jnp.moveaxis(local0, (0, 1), (-2, -1)), axis=-1)))
-    P0, G0 = (joint_rows(x) for x in fk_stacked(topo.parents, offsets, L0))
-    tgt = [_quat.unstack(targets[k]) for k in range(targets.shape[0])]
-    L0 = break_symmetry_tree(topo, offsets, joint_rows(L0), P0, G0, tgt, tol)
-    return _quat.stack([_quat.stack(batched(q, B)) for q in L0])
+    """``(*B, J, 4)`` start rotations with straight branches on their targets' lines bent
+    (``_symmetry.bend_straight``): ``targets (*B, E, 3)``, ``local0 (*B, J, 4)`` or ``(J, 4)``
+    (one start for the batch), batch-leading.  Its own program when called eagerly: inside
+    the sweeps' it would be compiled again with each of them."""
+    L0 = _s(_quat.renormalize(_quat.unstack(local0, axis=-1)))
+    P0, G0 = fk_stacked(topo.parents, offsets, L0)
+    return bend_straight(topo, L0, P0, G0, targets, tol)
 
 
 def orient_targets(orients, orient_weights):

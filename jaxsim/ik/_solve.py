@@ -112,10 +112,9 @@ def _run(settings, model, inp: Inputs, topo, table, lean, *, trace, unroll, earl
     orients = inp.orientations
     if orients is not None:
         orients = jnp.broadcast_to(orients, batch + orients.shape[-2:])
-    tgt = jnp.moveaxis(targets, (-2, -1), (0, 1))
-    start = bent_start(offsets, tgt, jnp.moveaxis(rotations, (-2, -1), (0, 1)), tol, topo=topo)
+    start = bent_start(offsets, targets, rotations, tol, topo=topo)  # (*B, J, 4)
     if isinstance(settings, LevenbergMarquardt):  # LM too starts bent: on its target's line J^T r = 0
-        rot = jnp.moveaxis(start, (0, 1), (-2, -1)).reshape((n, J, 4))  # bent_start's is (J, 4, *B)
+        rot = start.reshape((n, J, 4))
         extra = extra_starts(model, settings.seeds) if settings.seeds > 1 else None  # the same for every set
 
         def flat(a):
@@ -130,7 +129,7 @@ def _run(settings, model, inp: Inputs, topo, table, lean, *, trace, unroll, earl
                      jnp.asarray(settings.damping, dtype), extra, topo=topo, limbs=limbs, poles=pole_points,
                      pole_limbs=pole_limbs, **kw)
         return jax.tree_util.tree_map(lambda x: x.reshape(batch + x.shape[1:]), res)
-    res = run_tree(offsets, tgt, start, inp.weights, tol, table,
+    res = run_tree(offsets, jnp.moveaxis(targets, (-2, -1), (0, 1)), jnp.moveaxis(start, (-2, -1), (0, 1)), inp.weights, tol, table,
                    None if orients is None else jnp.moveaxis(orients, (-2, -1), (0, 1)), inp.orientation_weights,
                    topo=topo, alg=type(settings), **kw)
     return _batch_last(res, batch)

@@ -56,21 +56,67 @@ def _s(v):
     return _quat.stack(v, axis=-1)
 
 
-def fk_stacked(parents, offsets, L):
+@functools.lru_cache(maxsize=None)
+def level_table(parents: tuple) -> tuple:
+    """Static ``(joints, parents)``, each ``(D, W)``: per tree depth ``d >= 1`` its joints and
+    their parents, padded to the widest level with ``J`` (a scratch row); ``J > 1``."""
+    levels, _ = tree_levels(parents)
+    J, W = len(parents), max(len(j) for j, _ in levels)
+    jt, pt = np.full((len(levels), W), J), np.full((len(levels), W), J)
+    for d, (joints, _) in enumerate(levels):
+        jt[d, :len(joints)] = joints
+        pt[d, :len(joints)] = [parents[j] for j in joints]
+    return jt, pt
+
+
+#: ``fk_stacked`` unrolls its tree levels for at least this many poses at once (the
+#: visible batch; a vmapped FK sees one): ``_joints.UNROLL_MIN_BATCH``.
+UNROLL_MIN_POSES = 256
+
+
+def fk_stacked(parents, offsets, L, *, unroll=None):
     """FK of stacked rotations: ``L (..., J, 4)``, ``offsets (J, 3)`` (or ``(..., J, 3)``,
     per batch element: a clip's translated joints) -> ``(P (..., J, 3), G (..., J, 4))``.
 
-    ``G_i = G_p L_i``, ``P_i = P_p + R(G_p) offsets[i]`` (``_fk``), one tree level at a time.
+    ``G_i = G_p L_i``, ``P_i = P_p + R(G_p) offsets[i]`` (``_fk``), one tree level at a time:
+    unrolled (``unroll``; default: at least ``UNROLL_MIN_POSES`` poses in ``L``'s batch), or
+    as a rolled loop over the levels (:func:`level_table`), which compiles the humanoid's FK
+    5x faster and runs as fast on a few dozen poses, and up to 2x slower on thousands
+    (docs/notebook.md, "FK by a loop over tree levels").
     """
-    levels, order = tree_levels(tuple(parents))
-    G = [L[..., :1, :]]
-    P = [jnp.broadcast_to(offsets[..., :1, :], L.shape[:-2] + (1, 3))]
-    for joints, prow in levels:
-        gp, pp = _q(take(G[-1], prow)), _q(take(P[-1], prow))
-        P.append(_s(_quat.add(pp, _quat.rotate(gp, _q(take(offsets, joints))))))
-        G.append(_s(_quat.mul(gp, _q(take(L, joints)))))
-    perm = np.asarray(order)
-    return jnp.take(jnp.concatenate(P, axis=-2), perm, axis=-2), jnp.take(jnp.concatenate(G, axis=-2), perm, axis=-2)
+    J, batch = len(parents), jnp.broadcast_shapes(L.shape[:-2], offsets.shape[:-2])
+    if unroll is None:
+        unroll = int(np.prod(batch, dtype=np.int64)) >= UNROLL_MIN_POSES
+    if unroll or J == 1:
+        levels, order = tree_levels(tuple(parents))
+        G = [L[..., :1, :]]
+        P = [jnp.broadcast_to(offsets[..., :1, :], L.shape[:-2] + (1, 3))]
+        for joints, prow in levels:
+            gp, pp = _q(take(G[-1], prow)), _q(take(P[-1], prow))
+            P.append(_s(_quat.add(pp, _quat.rotate(gp, _q(take(offsets, joints))))))
+            G.append(_s(_quat.mul(gp, _q(take(L, joints)))))
+        perm = np.asarray(order)
+        return (jnp.take(jnp.concatenate(P, axis=-2), perm, axis=-2),
+                jnp.take(jnp.concatenate(G, axis=-2), perm, axis=-2))
+    jt, pt = level_table(tuple(parents))
+
+    def pad(x):  # the scratch row J, which padded level entries write and read
+        return jnp.concatenate([x, jnp.zeros(x.shape[:-2] + (1, x.shape[-1]), x.dtype)], axis=-2)
+
+    Lp, off = pad(L), pad(offsets)
+    G = jnp.broadcast_to(Lp, batch + Lp.shape[-2:])
+    P = jnp.zeros(batch + (J + 1, 3), L.dtype).at[..., 0, :].set(offsets[..., 0, :])
+
+    def level(d, GP):
+        G, P = GP
+        joints, prow = jnp.asarray(jt)[d], jnp.asarray(pt)[d]
+        gp, pp = _q(jnp.take(G, prow, axis=-2)), _q(jnp.take(P, prow, axis=-2))
+        Pn = _s(_quat.add(pp, _quat.rotate(gp, _q(jnp.take(off, joints, axis=-2)))))
+        Gn = _s(_quat.mul(gp, _q(jnp.take(Lp, joints, axis=-2))))
+        return G.at[..., joints, :].set(Gn), P.at[..., joints, :].set(Pn)
+
+    G, P = jax.lax.fori_loop(0, jt.shape[0], level, (G, P))
+    return P[..., :J, :], G[..., :J, :]
 
 
 @pytree_dataclass

@@ -6,6 +6,7 @@ zero axis, or a move along the line), so such poses are bent first (FABRIK paper
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 
 import jax.numpy as jnp
@@ -82,38 +83,121 @@ def branch_segments(topo):
     return out
 
 
-def break_symmetry_tree(topo, offsets, local, positions, frames, targets, tol):
+@dataclasses.dataclass(frozen=True, eq=False)
+class BendPlan:
+    """Static index arrays of :func:`bend_straight` over its ``C`` candidate bends (NumPy).
+
+    Attributes:
+      bones: ``(2, nb)`` each branch bone's upper and lower joint.
+      pairs: ``(2, np)`` consecutive bones (indices into ``bones``) that must be parallel.
+      slot, joint, bone: ``(C,)`` per candidate its effector slot, the joint ``seg[i]`` the
+        target line starts from, and that joint's bone below.
+      needs: ``(C, max(np, 1))`` the pairs each candidate needs parallel.
+      earlier: ``(C, C)`` the candidates before each in its own branch.
+      moved: ``(M,)`` the joints some candidate turns; compose: ``(M, K)`` their candidates in
+        order, padded with ``C`` (no turn); parent: ``(M,)`` their parents (0 for the root);
+        is_root: ``(M,)``.
+    """
+
+    bones: np.ndarray
+    pairs: np.ndarray
+    slot: np.ndarray
+    joint: np.ndarray
+    bone: np.ndarray
+    needs: np.ndarray
+    earlier: np.ndarray
+    moved: np.ndarray
+    compose: np.ndarray
+    parent: np.ndarray
+    is_root: np.ndarray
+
+
+@functools.lru_cache(maxsize=None)
+def _bend_plan(topo) -> BendPlan | None:
+    """The :class:`BendPlan` of ``topo`` (``None`` when no branch has a bone).
+
+    The candidates are, per effector slot ``k`` in turn and per joint ``seg[i]`` of its
+    branch from the top (:func:`branch_segments`), the bend of joint ``m`` (``seg[i + 1]``,
+    or ``seg[i]`` for the last bone) when the bones from ``seg[i]`` down are straight and
+    point at the target."""
+    bones, pairs, cand, need = [], [], [], []
+    for k, seg in enumerate(branch_segments(topo)):
+        if len(seg) < 2:  # the root as an effector: no bone to bend
+            continue
+        b0, p0 = len(bones), len(pairs)
+        bones += [(seg[j], seg[j + 1]) for j in range(len(seg) - 1)]
+        pairs += [(b0 + j, b0 + j + 1) for j in range(len(seg) - 2)]
+        for i in range(max(len(seg) - 2, 1)):
+            cand.append((k, seg[i], b0 + i, seg[i + 1] if len(seg) - i > 2 else seg[i]))
+            need.append(range(p0 + i, p0 + len(seg) - 2))  # the bones below seg[i], pairwise parallel
+    if not cand:
+        return None
+    C = len(cand)
+    slot, joint, bone, m = (np.asarray([c[f] for c in cand]) for f in range(4))
+    needs = np.zeros((C, max(len(pairs), 1)), bool)
+    for c, r in enumerate(need):
+        needs[c, list(r)] = True
+    earlier = (slot[:, None] == slot[None, :]) & (np.arange(C)[None, :] < np.arange(C)[:, None])
+    moved = sorted(set(m.tolist()))
+    per = [[c for c in range(C) if m[c] == j] for j in moved]
+    depth = max(len(p) for p in per)
+    compose = np.asarray([p + [C] * (depth - len(p)) for p in per])  # C: the identity row
+    parent = np.asarray([topo.parents[j] if j > 0 else 0 for j in moved])
+    return BendPlan(bones=np.asarray(bones).T, pairs=np.asarray(pairs, dtype=int).reshape(-1, 2).T, slot=slot,
+                    joint=joint, bone=bone, needs=needs, earlier=earlier, moved=np.asarray(moved), compose=compose,
+                    parent=parent, is_root=np.asarray(moved) == 0)
+
+
+def bend_straight(topo, L, P, G, targets, tol):
     """Bend the straight branches of a tree that lie on the line of their target.
 
     Where the lower part of an effector's branch (see :func:`branch_segments`), from
     some joint ``b`` down to the effector, lies on the line from ``b`` to the effector's
     target, and the effector is not yet within ``tol``, the joint just below the
     highest such ``b`` is turned by ``SYMMETRY_BREAK_ANGLE`` about an axis perpendicular
-    to the line (as :func:`break_symmetry_chain` does for chains).  Returns the new list of
-    local rotations; the caller redoes FK.
+    to the line (as :func:`break_symmetry_chain` does for chains).  Vectorised over the
+    branches' joints (a few operations on ``(..., C, 3)`` arrays, not one per joint).
+
+    Args:
+      topo: static ``Topology``.
+      L, G: ``(..., J, 4)`` local rotations and their world frames; P: ``(..., J, 3)``.
+      targets: ``(..., E, 3)``; tol: the effector error (m) that counts as reached.
+
+    Returns:
+      ``(..., J, 4)`` local rotations, broadcast to the targets' batch; the caller redoes FK.
     """
+    plan = _bend_plan(topo)
+    batch = jnp.broadcast_shapes(L.shape[:-2], P.shape[:-2], targets.shape[:-2])
+    L = jnp.broadcast_to(L, batch + L.shape[-2:])
+    if plan is None:
+        return L
+    q = functools.partial(_quat.unstack, axis=-1)
+
+    def at(x, idx):
+        return jnp.take(x, idx, axis=-2)
+
     def parallel(u, v):
         return _quat.safe_norm(_quat.cross(u, v)) <= 1e-6 * _quat.safe_norm(u) * _quat.safe_norm(v)
 
-    local = list(local)
-    for k, seg in enumerate(branch_segments(topo)):
-        if len(seg) < 2:  # the root as an effector: no bone to bend
-            continue
-        bones = [_quat.sub(positions[seg[j + 1]], positions[seg[j]]) for j in range(len(seg) - 1)]
-        # straight_below[i]: the bones from seg[i] down to the effector are all parallel
-        straight_below = [None] * len(bones)
-        straight_below[-1] = True
-        for i in range(len(bones) - 2, -1, -1):
-            straight_below[i] = straight_below[i + 1] & parallel(bones[i], bones[i + 1])
-        taken = _quat.safe_norm(_quat.sub(positions[seg[-1]], targets[k])) <= tol
-        for i in range(max(len(seg) - 2, 1)):
-            to_target = _quat.sub(targets[k], positions[seg[i]])
-            pick = straight_below[i] & parallel(bones[i], to_target) & ~taken
-            taken = taken | pick
-            m = seg[i + 1] if len(seg) - i > 2 else seg[i]
-            r = _bend(_quat.perpendicular(bones[i]))
-            gp = frames[topo.parents[m]] if m > 0 else None
-            turned = _quat.mul(r, local[m] if gp is None else _quat.mul(gp, local[m]))
-            lm = turned if gp is None else _quat.mul(_quat.conj(gp), turned)
-            local[m] = _quat.where(pick, lm, local[m])
-    return local
+    bones = at(P, plan.bones[1]) - at(P, plan.bones[0])  # (..., nb, 3)
+    par = parallel(q(at(bones, plan.pairs[0])), q(at(bones, plan.pairs[1])))  # (..., np)
+    if par.shape[-1] == 0:
+        par = jnp.ones(par.shape[:-1] + (1,), bool)
+    straight = jnp.all(par[..., None, :] | ~plan.needs, axis=-1)  # (..., C)
+    bone = q(at(bones, plan.bone))
+    reached = _quat.safe_norm(q(at(P, np.asarray(topo.effectors)) - targets)) <= tol  # (..., E)
+    raw = (straight & parallel(bone, q(at(targets, plan.slot) - at(P, plan.joint)))
+           & ~jnp.take(reached, plan.slot, axis=-1))
+    pick = raw & ~jnp.any(raw[..., None, :] & plan.earlier, axis=-1)  # the highest per branch
+    r = _quat.where(pick, _bend(_quat.perpendicular(bone)), _quat.identity(pick.shape, L.dtype))
+    r = tuple(jnp.concatenate([c, jnp.ones_like(c[..., :1]) if i == 0 else jnp.zeros_like(c[..., :1])], axis=-1)
+              for i, c in enumerate(r))  # and the identity row C
+    R = _quat.identity(plan.compose.shape[:1], L.dtype)
+    for s in range(plan.compose.shape[1]):  # two picks on one joint: turned in the branches' order
+        R = _quat.mul(tuple(jnp.take(c, plan.compose[:, s], axis=-1) for c in r), R)
+    any_pick = jnp.any(jnp.take(jnp.concatenate([pick, jnp.zeros_like(pick[..., :1])], axis=-1), plan.compose,
+                                axis=-1), axis=-1)
+    gp = q(jnp.where(plan.is_root[:, None], jnp.asarray([1.0, 0.0, 0.0, 0.0], L.dtype), at(G, plan.parent)))
+    Lm = q(at(L, plan.moved))
+    turned = _quat.mul(_quat.conj(gp), _quat.mul(R, _quat.mul(gp, Lm)))
+    return L.at[..., plan.moved, :].set(_quat.stack(_quat.where(any_pick, turned, Lm), axis=-1))
