@@ -10,7 +10,8 @@ keeps every round, the median ratio and its spread.
 Cases: the 6-joint unit chain, 100k float32 targets, FABRIK and CCD, exactly 10 sweeps
 (the throughput benchmark's headline), unrolled and on the rolled joint loop; the free humanoid (hands and ankles), 10k sets,
 10 sweeps and tol 1e-4 with early exit, and LM to tol 1e-4 on 1000 of its sets; the humanoid with limits, 1000 sets, FABRIK and
-CCD and LM to tol 1e-4 (early exit), and LM with ``seeds=8``.
+CCD and LM to tol 1e-4 (early exit), and LM with ``seeds=8``; the 7-hinge arm of ``ik_throughput.py``, 1000 float32 targets,
+FABRIK, CCD and LM to tol 1e-4 (early exit).
 
 Run: ``python benchmarks/ik_ab.py --baseline 93626e0 [--rounds 5]``; writes
 ``benchmarks/results/ik_ab.json``.
@@ -38,6 +39,22 @@ def random_poses(rng, shape, amp=np.pi):
     ax /= np.linalg.norm(ax, axis=-1, keepdims=True)
     ang = amp * rng.uniform(size=shape + (1,))
     return np.concatenate([np.cos(ang / 2), np.sin(ang / 2) * ax], axis=-1)
+
+
+def arm7(ik, n=1000):
+    """``ik_throughput.py``'s 7-hinge arm (float32) and ``n`` targets from in-range angles."""
+    from ik_throughput import ARM7_AXES, ARM7_LENGTHS, ARM7_RANGES
+
+    offsets = np.array([[0, 0, 0]] + [[length, 0, 0] for length in ARM7_LENGTHS], np.float32)
+    arm = ik.Chain(offsets, limits=tuple(ik.Hinge(a, lo, hi) for a, (lo, hi) in zip(ARM7_AXES, ARM7_RANGES)) + (None,))
+    rng = np.random.default_rng(3)
+    ang = np.stack([rng.uniform(lo, hi, size=n) for lo, hi in ARM7_RANGES], axis=1)
+    q = np.zeros((n, 8, 4), np.float32)
+    q[..., 0] = 1.0
+    for j, a in enumerate(ARM7_AXES):
+        q[:, j, 0] = np.cos(ang[:, j] / 2)
+        q[:, j, 1:] = np.sin(ang[:, j] / 2)[:, None] * np.asarray(a)
+    return arm, jnp.asarray(np.asarray(ik.fk(arm, q).positions)[:, -1])
 
 
 def cases(pkg, n_chain, n_sets):
@@ -72,6 +89,10 @@ def cases(pkg, n_chain, n_sets):
         out[f"humanoid limits {s} tol 1e-4"] = (jax.jit(lambda t, s=s: ik.solve(HL, t, solver=s, effectors=eff,
                                                                                 max_iters=100, tol=1e-4,
                                                                                 early_exit=True)), TL[:m], m)
+    arm, Ta = arm7(ik)
+    for s in ("fabrik", "ccd", "lm"):
+        out[f"arm7 {s} tol 1e-4"] = (jax.jit(lambda t, s=s: ik.solve(arm, t[:, None], solver=s, effectors=(7,),
+                                                                     max_iters=100, tol=1e-4, early_exit=True)), Ta, 1000)
     lm8 = ik.LevenbergMarquardt(100, 1e-4, seeds=8)
     out["humanoid limits lm seeds=8 tol 1e-4"] = (jax.jit(lambda t: ik.solve(HL, t, solver=lm8, effectors=eff,
                                                                             early_exit=True)), TL, 1000)

@@ -6,7 +6,9 @@ tree's static joints), which suits their joint-by-joint updates but makes a 24-j
 loop body thousands of scalar operations, and XLA's compile time grows with them.  A
 solver that moves every joint at once (LM) works on ``(..., J, 4)`` arrays instead: FK
 is one gather and two quaternion products per tree level (the humanoid has 9 levels),
-the projection onto the limits a few operations over all joints.  Same formulas as
+unrolled for thousands of poses at once and a rolled loop over the levels otherwise (a
+vmapped solver's FK sees one pose), the projection onto the limits a few operations over
+all joints.  Same formulas as
 ``_fk.fk_tree``, ``_projection.project`` and ``_pose.effector_sq_errors`` (tested).
 """
 
