@@ -8,10 +8,11 @@ both alike; the paired ratio per round is ``current rate / baseline rate``, and 
 keeps every round, the median ratio and its spread.
 
 Cases: the 6-joint unit chain, 100k float32 targets, FABRIK and CCD, exactly 10 sweeps
-(the throughput benchmark's headline), unrolled and on the rolled joint loop; the free humanoid (hands and ankles), 10k sets,
-10 sweeps and tol 1e-4 with early exit, and LM to tol 1e-4 on 1000 of its sets; the humanoid with limits, 1000 sets, FABRIK and
-CCD and LM to tol 1e-4 (early exit), and LM with ``seeds=8``; the 7-hinge arm of ``ik_throughput.py``, 1000 float32 targets,
-FABRIK, CCD and LM to tol 1e-4 (early exit).
+(the throughput benchmark's headline), unrolled and on the rolled joint loop; the free
+humanoid (hands and ankles), 10k sets, 10 sweeps and tol 1e-4 with early exit, and LM to
+tol 1e-4 on 1000 of its sets; the humanoid with limits, 1000 sets, FABRIK and CCD and LM to
+tol 1e-4 (early exit), and LM with ``seeds=8``; the 7-hinge arm of ``ik_throughput.py``,
+1000 float32 targets, FABRIK, CCD and LM to tol 1e-4 (early exit).
 
 Run: ``python benchmarks/ik_ab.py --baseline 93626e0 [--rounds 5]``; writes
 ``benchmarks/results/ik_ab.json``.
@@ -91,8 +92,9 @@ def cases(pkg, n_chain, n_sets):
                                                                                 early_exit=True)), TL[:m], m)
     arm, Ta = arm7(ik)
     for s in ("fabrik", "ccd", "lm"):
-        out[f"arm7 {s} tol 1e-4"] = (jax.jit(lambda t, s=s: ik.solve(arm, t[:, None], solver=s, effectors=(7,),
-                                                                     max_iters=100, tol=1e-4, early_exit=True)), Ta, 1000)
+        def f(t, s=s):
+            return ik.solve(arm, t[:, None], solver=s, effectors=(7,), max_iters=100, tol=1e-4, early_exit=True)
+        out[f"arm7 {s} tol 1e-4"] = (jax.jit(f), Ta, 1000)
     lm8 = ik.LevenbergMarquardt(100, 1e-4, seeds=8)
     out["humanoid limits lm seeds=8 tol 1e-4"] = (jax.jit(lambda t: ik.solve(HL, t, solver=lm8, effectors=eff,
                                                                             early_exit=True)), TL, 1000)

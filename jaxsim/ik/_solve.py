@@ -129,7 +129,8 @@ def _run(settings, model, inp: Inputs, topo, table, lean, *, trace, unroll, earl
                      jnp.asarray(settings.damping, dtype), extra, topo=topo, limbs=limbs, poles=pole_points,
                      pole_limbs=pole_limbs, **kw)
         return jax.tree_util.tree_map(lambda x: x.reshape(batch + x.shape[1:]), res)
-    res = run_tree(offsets, jnp.moveaxis(targets, (-2, -1), (0, 1)), jnp.moveaxis(start, (-2, -1), (0, 1)), inp.weights, tol, table,
+    res = run_tree(offsets, jnp.moveaxis(targets, (-2, -1), (0, 1)), jnp.moveaxis(start, (-2, -1), (0, 1)),
+                   inp.weights, tol, table,
                    None if orients is None else jnp.moveaxis(orients, (-2, -1), (0, 1)), inp.orientation_weights,
                    topo=topo, alg=type(settings), **kw)
     return _batch_last(res, batch)

@@ -22,6 +22,7 @@ import numpy as np
 
 from .._dataclass import pytree_dataclass, static_field
 from .._geometry import quat as _quat
+from ._joints import UNROLL_MIN_BATCH
 from ._projection import clamp, twist_end
 
 
@@ -71,24 +72,20 @@ def level_table(parents: tuple) -> tuple:
     return jt, pt
 
 
-#: ``fk_stacked`` unrolls its tree levels for at least this many poses at once (the
-#: visible batch; a vmapped FK sees one): ``_joints.UNROLL_MIN_BATCH``.
-UNROLL_MIN_POSES = 256
-
-
 def fk_stacked(parents, offsets, L, *, unroll=None):
     """FK of stacked rotations: ``L (..., J, 4)``, ``offsets (J, 3)`` (or ``(..., J, 3)``,
     per batch element: a clip's translated joints) -> ``(P (..., J, 3), G (..., J, 4))``.
 
     ``G_i = G_p L_i``, ``P_i = P_p + R(G_p) offsets[i]`` (``_fk``), one tree level at a time:
-    unrolled (``unroll``; default: at least ``UNROLL_MIN_POSES`` poses in ``L``'s batch), or
+    unrolled (``unroll``; default: at least ``_joints.UNROLL_MIN_BATCH`` poses in ``L``'s visible
+    batch, where a vmapped FK sees one), or
     as a rolled loop over the levels (:func:`level_table`), which compiles the humanoid's FK
     5x faster and runs as fast on a few dozen poses, and up to 2x slower on thousands
     (docs/notebook.md, "FK by a loop over tree levels").
     """
     J, batch = len(parents), jnp.broadcast_shapes(L.shape[:-2], offsets.shape[:-2])
     if unroll is None:
-        unroll = int(np.prod(batch, dtype=np.int64)) >= UNROLL_MIN_POSES
+        unroll = int(np.prod(batch, dtype=np.int64)) >= UNROLL_MIN_BATCH
     if unroll or J == 1:
         levels, order = tree_levels(tuple(parents))
         G = [L[..., :1, :]]

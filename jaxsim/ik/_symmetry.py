@@ -95,8 +95,7 @@ class BendPlan:
       needs: ``(C, max(np, 1))`` the pairs each candidate needs parallel.
       earlier: ``(C, C)`` the candidates before each in its own branch.
       moved: ``(M,)`` the joints some candidate turns; compose: ``(M, K)`` their candidates in
-        order, padded with ``C`` (no turn); parent: ``(M,)`` their parents (0 for the root);
-        is_root: ``(M,)``.
+        order, padded with ``C`` (no turn); parent: ``(M,)`` their parents (0 for the root).
     """
 
     bones: np.ndarray
@@ -109,7 +108,6 @@ class BendPlan:
     moved: np.ndarray
     compose: np.ndarray
     parent: np.ndarray
-    is_root: np.ndarray
 
 
 @functools.lru_cache(maxsize=None)
@@ -145,7 +143,7 @@ def _bend_plan(topo) -> BendPlan | None:
     parent = np.asarray([topo.parents[j] if j > 0 else 0 for j in moved])
     return BendPlan(bones=np.asarray(bones).T, pairs=np.asarray(pairs, dtype=int).reshape(-1, 2).T, slot=slot,
                     joint=joint, bone=bone, needs=needs, earlier=earlier, moved=np.asarray(moved), compose=compose,
-                    parent=parent, is_root=np.asarray(moved) == 0)
+                    parent=parent)
 
 
 def bend_straight(topo, L, P, G, targets, tol):
@@ -197,7 +195,7 @@ def bend_straight(topo, L, P, G, targets, tol):
         R = _quat.mul(tuple(jnp.take(c, plan.compose[:, s], axis=-1) for c in r), R)
     any_pick = jnp.any(jnp.take(jnp.concatenate([pick, jnp.zeros_like(pick[..., :1])], axis=-1), plan.compose,
                                 axis=-1), axis=-1)
-    gp = q(jnp.where(plan.is_root[:, None], jnp.asarray([1.0, 0.0, 0.0, 0.0], L.dtype), at(G, plan.parent)))
+    gp = q(jnp.where((plan.moved == 0)[:, None], jnp.asarray([1.0, 0.0, 0.0, 0.0], L.dtype), at(G, plan.parent)))
     Lm = q(at(L, plan.moved))
     turned = _quat.mul(_quat.conj(gp), _quat.mul(R, _quat.mul(gp, Lm)))
     return L.at[..., plan.moved, :].set(_quat.stack(_quat.where(any_pick, turned, Lm), axis=-1))
