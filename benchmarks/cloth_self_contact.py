@@ -94,6 +94,7 @@ def main():
                    "steps": steps, "ms_per_step": 1e3 * run / steps, "compile_s": max(k["first_s"] - run, 0.0),
                    "converged_share": float(np.mean(info.converged)), "stable": bool(np.all(info.stable)),
                    "substeps_max": int(np.max(info.substeps)), "newton_per_step": float(np.mean(info.newton_iters)),
+                   "cg_per_newton": float(np.sum(info.cg_iters) / max(1, np.sum(info.newton_iters))),
                    "frames_intersecting": len(bad), "first_intersecting_frame": bad[0] if bad else None,
                    "least_layer_gap_m": min(layer_gap(X[t], n) for t in range(0, steps, max(1, steps // 10))),
                    "pair_overflow": bool(np.any(info.pair_overflow)) if on else None}

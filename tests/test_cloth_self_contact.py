@@ -99,6 +99,36 @@ def test_broadphase_equals_brute_force(seed, size):
         (i, j) for i, j in zip(*np.nonzero(ref)) if i < j}
 
 
+def _pair_list(found):
+    on = np.asarray(found.on)
+    return sorted(zip(np.asarray(found.a)[on].tolist(), np.asarray(found.b)[on].tolist()))
+
+
+@pytest.mark.parametrize("packed_bits", [bp.PACKED_ID_BITS, 0])
+@pytest.mark.parametrize("hashed", ["xla", "two buckets"])
+def test_broadphase_reports_each_pair_once(monkeypatch, packed_bits, hashed):
+    """Both cell tables (box ids packed under the hash's bits, and the sort of two arrays for
+    larger sets), with the real hash and with one under which most cells collide: the found
+    list, with multiplicity, is the brute-force one (a box whose cells share a key is entered
+    once)."""
+    monkeypatch.setattr(bp, "PACKED_ID_BITS", packed_bits)
+    if hashed != "xla":
+        monkeypatch.setattr(bp, "_hash", lambda cell: (jnp.sum(cell, axis=-1) % 2).astype(jnp.int32))
+    rng = np.random.default_rng(7)
+    lo_a, hi_a = _boxes(rng, 40, 0.08)
+    lo_b, hi_b = _boxes(rng, 30, 0.08)
+    # a fresh function per case: jit's trace cache does not see the patched module
+    f = jax.jit(lambda *a, **k: bp.overlapping(*a, **k), static_argnames=("capacity", "same"))
+    found = f(lo_a, hi_a, lo_b, hi_b, capacity=4000)
+    ref = np.all((np.asarray(lo_a)[:, None] <= np.asarray(hi_b)[None]) & (np.asarray(lo_b)[None] <= np.asarray(hi_a)[:, None]), -1)
+    assert not bool(found.overflow)
+    assert _pair_list(found) == sorted(zip(*map(np.ndarray.tolist, np.nonzero(ref))))
+    assert int(found.count) == int(ref.sum())
+    same = f(lo_a, hi_a, lo_a, hi_a, capacity=4000, same=True)
+    ref = np.all((np.asarray(lo_a)[:, None] <= np.asarray(hi_a)[None]) & (np.asarray(lo_a)[None] <= np.asarray(hi_a)[:, None]), -1)
+    assert _pair_list(same) == sorted((int(i), int(j)) for i, j in zip(*np.nonzero(ref)) if i < j)
+
+
 def test_broadphase_overflow_is_reported():
     rng = np.random.default_rng(1)
     lo, hi = _boxes(rng, 200, 0.2)

@@ -20,7 +20,7 @@ import jax.numpy as jnp
 from ..._dataclass import pytree_dataclass, static_field
 from .._implicit.contact import _d, barrier, barrier_slope
 from ..._fusion import materialized
-from .._rank_one import RankOne
+from .._rank_one import RankOne, compacted
 from . import broadphase as bp
 from . import ccd
 from .distance import mollifier_soa, point_triangle2, point_triangle2_soa, segment_segment2, segment_segment2_soa
@@ -30,6 +30,12 @@ from .distance import mollifier_soa, point_triangle2, point_triangle2_soa, segme
 #: narrow phase keeps those that can come within ``dhat``; two 32x32 layers moving 5 cm
 #: apart along their normal have 3.0 and 6.3 per triangle and edge.
 BOX_SLOTS = 12
+
+
+#: The pairs' Hessian blocks are applied in chunks of this many rows, up to the last pair
+#: whose barrier acts (``_rank_one.RankOne.matvec``): a few hundred of the ``2 x 8 N`` slots
+#: act in a drape of two layers, and PCG applies the blocks once per iteration.
+PAIR_CHUNK = 256
 
 
 @pytree_dataclass
@@ -202,7 +208,7 @@ def blocks(sc: SelfContact, x, free) -> RankOne:
     (``b'' > 0``); the rest is dropped, as the colliders' projection drops it
     (``_implicit.contact``), so the gradient stays exact and the Hessian is a PSD model
     of it.  ``g`` is ``grad d`` over the pair's four particles (0 on pins), ``c`` is
-    ``w b''(d)`` (0 where no barrier acts)."""
+    ``w b''(d)``; the pairs whose barrier acts come first (``_rank_one.compacted``)."""
     s = current(sc, x)
     ids_all, g_all, c_all = [], [], []
     for kind, ids, moves, X in _kinds(s, x, free):
@@ -213,7 +219,8 @@ def blocks(sc: SelfContact, x, free) -> RankOne:
         ids_all.append(ids)
         g_all.append(g.reshape(-1, 12) * mask)
         c_all.append(c)
-    return RankOne(jnp.concatenate(ids_all), materialized(jnp.concatenate(g_all)), jnp.concatenate(c_all))
+    return compacted(RankOne(jnp.concatenate(ids_all), materialized(jnp.concatenate(g_all)), jnp.concatenate(c_all)),
+                     PAIR_CHUNK)
 
 
 def step_bound(sc: SelfContact, s: PairSet, x, dx, t_max):
