@@ -3,11 +3,10 @@
 The cell side is the largest box extent of either set, so a box covers at most 2 x 2 x 2
 cells.  The second set's boxes are entered once per covered cell and sorted by a hash of
 the cell (packed with the box's id into one word); each box of the first set looks up its
-own cells by binary search.  A pair of
-overlapping boxes is reported from one cell only: the one holding the corner
-``max(lo_a, lo_b)``, which both boxes cover.  The ragged lists of matches are laid out in
-``capacity`` slots by a prefix sum; a run with more matches than slots says so in
-``overflow`` and never drops a pair silently.
+own cells by binary search.  A pair of overlapping boxes is reported from one cell only:
+the one holding the corner ``max(lo_a, lo_b)``, which both boxes cover.  The ragged lists
+of matches are laid out in ``capacity`` slots by a prefix sum; a run with more matches than
+slots says so in ``overflow`` and never drops a pair silently.
 """
 
 from __future__ import annotations
