@@ -12,7 +12,8 @@ from scipy.optimize import minimize
 
 from jaxsim import cloth as C
 from jaxsim.cloth._self import broadphase as bp, ccd
-from jaxsim.cloth._self.distance import point_triangle2, segment_segment2
+from jaxsim.cloth._self.distance import pair_distance2, point_triangle2, point_triangle2_soa, segment_segment2, \
+    segment_segment2_soa
 from jaxsim.cloth._self.terms import _pair_energy, build
 
 from _helpers import all_eqns, self_intersections, step_jaxpr, triangle_pairs_intersect
@@ -53,6 +54,34 @@ def test_distances_against_numpy_references():
     assert float(ee(a, b, np.array([1.5, 0.1, 0]), np.array([2.0, 0.1, 0]))) == pytest.approx(0.26, rel=1e-14)
     assert float(ee(a, b, np.array([2.0, 0, 0]), np.array([3.0, 0, 0]))) == pytest.approx(1.0, rel=1e-14)
     assert float(ee(a, b, np.array([0.5, -1, 0.2]), np.array([0.5, 1, 0.2]))) == pytest.approx(0.04, rel=1e-14)
+
+
+def test_pair_distance_derivatives_equal_autodiff_of_the_pieces():
+    """``pair_distance2``'s rule (the nearest points held) gives the same first and second
+    derivatives as autodiff through the pieces' ``where`` and ``minimum``, in every piece
+    (interior, edges, vertices; lines and ends), on random pairs and on degenerate ones
+    (float64).  Where two pieces tie there is no Hessian, so no pair here ties.  It fails if a piece's factors are wrong."""
+    rng = np.random.default_rng(3)
+    X = rng.normal(size=(64, 4, 3))
+    X[:16, 0] *= 0.2  # points near the triangles: the interior piece
+    X[16:24, 3] = X[16:24, 2] + 1e-9 * rng.normal(size=(8, 3))  # nearly point-sized edges
+    X[24:32, 1] = X[24:32, 0] + (X[24:32, 3] - X[24:32, 2])  # parallel edges, apart along their direction
+    X[24:32, 2:] += 3.0 * (X[24:32, 1] - X[24:32, 0])[:, None]  # (overlapping ones tie: no Hessian)
+    X = jnp.asarray(X)
+    plain = {0: point_triangle2_soa, 1: segment_segment2_soa}
+    for kind in (0, 1):
+        def f(X, kind=kind):
+            return jnp.sum(jnp.sqrt(pair_distance2(kind, X)) * jnp.arange(1.0, 65.0))
+
+        def g(X, kind=kind):
+            cols = [(X[:, i, 0], X[:, i, 1], X[:, i, 2]) for i in range(4)]
+            return jnp.sum(jnp.sqrt(plain[kind](*cols)) * jnp.arange(1.0, 65.0))
+
+        assert float(f(X)) == float(g(X))
+        np.testing.assert_allclose(jax.jit(jax.grad(f))(X), jax.jit(jax.grad(g))(X), rtol=1e-9, atol=1e-12)
+        Hf = jax.jit(jax.hessian(f))(X).reshape(64 * 12, 64 * 12)
+        Hg = jax.jit(jax.hessian(g))(X).reshape(64 * 12, 64 * 12)
+        np.testing.assert_allclose(Hf, Hg, rtol=1e-8, atol=1e-9 * float(np.max(np.abs(Hg))))
 
 
 def test_barrier_derivatives_finite_down_to_contact():
