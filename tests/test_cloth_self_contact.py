@@ -3,6 +3,8 @@ must never pass through themselves (checked by an independent triangle-triangle 
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -11,7 +13,7 @@ from hypothesis import given, settings, strategies as st
 from scipy.optimize import minimize
 
 from jaxsim import cloth as C
-from jaxsim.cloth._self import broadphase as bp, ccd
+from jaxsim.cloth._self import broadphase as bp, ccd, terms as sct
 from jaxsim.cloth._self.distance import pair_distance2, point_triangle2, point_triangle2_soa, segment_segment2, \
     segment_segment2_soa
 from jaxsim.cloth._self.terms import _pair_energy, build
@@ -190,6 +192,42 @@ def test_additive_ccd_is_safe_and_close():
     # the pair stops at no less than 10% of its distance, and not far before that
     assert np.all(p0[hit, 1] - t[hit] * fall[hit] >= 0.1 * p0[hit, 1] * (1 - 1e-12))
     assert np.all(p0[hit, 1] - t[hit] * fall[hit] <= 0.2 * p0[hit, 1])
+
+
+@pytest.mark.slow
+def test_step_bound_in_chunks_equals_additive_ccd_over_every_slot():
+    """The line search's bound over a pair set, taken a chunk at a time up to the last pair,
+    is the least of additive CCD over every slot: on the broadphase's set, on one with
+    empty slots between pairs, on one whose only pair sits alone in a last, partial chunk
+    (it fails if that chunk is left out), and under ``vmap``."""
+    c = _two_layers(n=4, gap=0.002, self_contact=True)
+    sc_ = build(c, 10.0)
+    x = c.rest
+    rng = np.random.default_rng(5)
+    dx = jnp.asarray(rng.normal(scale=0.004, size=x.shape)).at[: c.num_particles // 2, 1].add(-0.004)
+    s = sct.pairs(sc_, x, dx)
+    assert 8 < int(jnp.sum(s.pt_on)) and 8 < int(jnp.sum(s.ee_on))
+
+    @jax.jit
+    def every_slot(s):
+        """``(P,)`` additive CCD per point-triangle slot, and the least over every slot."""
+        t = []
+        for ids, on, dist2, split in ((s.pt, s.pt_on, point_triangle2, 1), (s.ee, s.ee_on, segment_segment2, 2)):
+            D = jnp.where(on[:, None, None], dx[ids], 0.0)
+            t.append(ccd.additive(sct._stand_in(x[ids], on), D, dist2, split, 1.0))
+        return t[0], jnp.minimum(jnp.min(t[0]), jnp.min(t[1]))
+
+    tp, want = every_slot(s)
+    k = int(jnp.argmin(tp))
+    assert float(want) < 1.0 and k >= 1
+    gaps = dataclasses.replace(s, pt_on=s.pt_on.at[k - 1].set(False), ee_on=s.ee_on.at[2].set(False))
+    lone = dataclasses.replace(s, pt_on=jnp.arange(s.pt_on.shape[0]) == k, ee_on=jnp.zeros_like(s.ee_on))
+    bound = jax.jit(sct.step_bound, static_argnames="chunk")
+    for pset, chunk in ((s, 3), (gaps, 3), (lone, k)):
+        assert float(bound(sc_, pset, x, dx, 1.0, chunk=chunk)) == float(every_slot(pset)[1]) < 1.0
+    both = jax.tree.map(lambda a, b: jnp.stack([a, b]), s, gaps)
+    t = jax.vmap(lambda p: sct.step_bound(sc_, p, x, dx, 1.0, chunk=3))(both)
+    assert [float(v) for v in t] == [float(every_slot(s)[1]), float(every_slot(gaps)[1])]
 
 
 def _two_layers(n=5, gap=0.04, colliders=(), dtype=np.float64, **kw):

@@ -221,12 +221,24 @@ def blocks(sc: SelfContact, x, free) -> RankOne:
                      PAIR_CHUNK)
 
 
-def step_bound(sc: SelfContact, s: PairSet, x, dx, t_max):
+def step_bound(sc: SelfContact, s: PairSet, x, dx, t_max, chunk: int = PAIR_CHUNK):
     """``()`` the largest fraction ``<= t_max`` of the step ``dx (N, 3)`` from ``x`` that no pair
-    of ``s`` crosses (additive CCD)."""
+    of ``s`` crosses (additive CCD).
+
+    The pairs are taken ``chunk`` slots at a time, up to the last slot that holds a pair
+    (the broadphase puts them first, ``broadphase.compact``): an empty slot's stand-in does
+    not move and allows the whole step, so the bound is the one over every slot."""
     t = jnp.asarray(t_max, x.dtype)
     for ids, on, dist2, split in ((s.pt, s.pt_on, point_triangle2, 1), (s.ee, s.ee_on, segment_segment2, 2)):
-        X = _stand_in(x[ids], on)
-        D = jnp.where(on[:, None, None], dx[ids], 0.0)
-        t = jnp.minimum(t, jnp.min(ccd.additive(X, D, dist2, split, t_max), initial=t_max))
+        P = on.shape[0]
+        rows = -(-P // chunk) * chunk
+        ids, on = jnp.pad(ids, ((0, rows - P), (0, 0))), jnp.pad(on, (0, rows - P))
+        used = jnp.max(jnp.where(on, jnp.arange(1, rows + 1), 0))
+
+        def body(i, t, ids=ids, on=on, dist2=dist2, split=split):
+            I, O = (jax.lax.dynamic_slice_in_dim(a, i * chunk, chunk) for a in (ids, on))
+            D = jnp.where(O[:, None, None], dx[I], 0.0)
+            return jnp.minimum(t, jnp.min(ccd.additive(_stand_in(x[I], O), D, dist2, split, t_max)))
+
+        t = jax.lax.fori_loop(0, (used + chunk - 1) // chunk, body, t)
     return t
