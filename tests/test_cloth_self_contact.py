@@ -14,8 +14,8 @@ from scipy.optimize import minimize
 
 from jaxsim import cloth as C
 from jaxsim.cloth._self import broadphase as bp, ccd, terms as sct
-from jaxsim.cloth._self.distance import pair_distance2, point_triangle2, point_triangle2_soa, segment_segment2, \
-    segment_segment2_soa
+from jaxsim.cloth._self.distance import columns, pair_distance2, point_triangle2, point_triangle2_soa, \
+    segment_segment2, segment_segment2_soa
 from jaxsim.cloth._self.terms import _pair_energy, build
 
 from _helpers import all_eqns, self_intersections, step_jaxpr, triangle_pairs_intersect
@@ -76,8 +76,7 @@ def test_pair_distance_derivatives_equal_autodiff_of_the_pieces():
             return jnp.sum(jnp.sqrt(pair_distance2(kind, X)) * jnp.arange(1.0, 65.0))
 
         def g(X, kind=kind):
-            cols = [(X[:, i, 0], X[:, i, 1], X[:, i, 2]) for i in range(4)]
-            return jnp.sum(jnp.sqrt(plain[kind](*cols)) * jnp.arange(1.0, 65.0))
+            return jnp.sum(jnp.sqrt(plain[kind](*columns(X))) * jnp.arange(1.0, 65.0))
 
         assert float(f(X)) == float(g(X))
         np.testing.assert_allclose(jax.jit(jax.grad(f))(X), jax.jit(jax.grad(g))(X), rtol=1e-9, atol=1e-12)

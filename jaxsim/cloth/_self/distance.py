@@ -133,7 +133,8 @@ def segment_segment2_soa(a0, a1, b0, b1):
     return _segment_segment(a0, a1, b0, b1)[0]
 
 
-def _columns(X):
+def columns(X):
+    """The four points of the pairs ``X (P, 4, 3)`` as ``(x, y, z)`` tuples of ``(P,)`` arrays."""
     return [(X[:, i, 0], X[:, i, 1], X[:, i, 2]) for i in range(4)]
 
 
@@ -148,13 +149,13 @@ def pair_distance2(kind: int, X):
     pieces' ``where`` and ``minimum`` compiles to loops that each recompute the whole
     search, one per output coordinate (docs/notebook.md, 2026-12-06).  The rule is itself
     differentiable, so second derivatives are exact too."""
-    return (_point_triangle if kind == 0 else _segment_segment)(*_columns(X))[0]
+    return (_point_triangle if kind == 0 else _segment_segment)(*columns(X))[0]
 
 
 @pair_distance2.defjvp
 def _pair_distance2_jvp(kind, primals, tangents):
     (X,), (dX,) = primals, tangents
-    d2, diff, coef = (_point_triangle if kind == 0 else _segment_segment)(*_columns(X))
+    d2, diff, coef = (_point_triangle if kind == 0 else _segment_segment)(*columns(X))
     R = materialized(jnp.stack([*diff, *coef], axis=1))  # (P, 7)
     G = 2.0 * R[:, 3:, None] * R[:, None, :3]  # (P, 4, 3)
     return d2, jnp.sum(G * dX, axis=(1, 2))

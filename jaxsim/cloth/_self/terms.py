@@ -23,7 +23,7 @@ from ..._fusion import materialized
 from .._rank_one import RankOne, compacted
 from . import broadphase as bp
 from . import ccd
-from .distance import mollifier_soa, pair_distance2, point_triangle2, segment_segment2
+from .distance import columns, mollifier_soa, pair_distance2, point_triangle2, segment_segment2
 
 
 #: Slots for box pairs per triangle (point–triangle) and per edge (edge–edge), before the
@@ -149,7 +149,7 @@ def _pair_distance(sc: SelfContact, kind: int, X, ids):
     w = jnp.mean(sc.weight[ids], axis=1)
     d2 = pair_distance2(kind, X)
     if kind == 1:
-        v = [(X[:, i, 0], X[:, i, 1], X[:, i, 2]) for i in range(4)]
+        v = columns(X)
         r = sc.rest[ids]
         ea, eb = r[:, 1] - r[:, 0], r[:, 3] - r[:, 2]
         w = w * mollifier_soa(*v, 1e-3 * jnp.sum(ea * ea, axis=1) * jnp.sum(eb * eb, axis=1))
