@@ -156,6 +156,17 @@ def bdf2_table():
     return "\n".join(out)
 
 
+def friction_eps_table():
+    d = load("cloth_friction_eps")
+    out = ["| drape (float32) | max_substep_depth | float32 `eps_v` (m/s) | converged | substeps | Newton/step | "
+           "ms/step | closest approach (m) |", "|---|---|---|---|---|---|---|---|"]
+    for r in d["rows"]:
+        out.append(f"| {r['n']}x{r['n']} | {r['max_substep_depth']} | {r['eps_v']:g} | {100 * r['converged_share']:.1f}% | "
+                   f"{r['substeps_total']} (60 steps) | {r['newton_per_step']:.1f} | {r['ms_per_step']:.1f} | "
+                   f"{r['closest_m']:.1e} |")
+    return "\n".join(out)
+
+
 def vbd_table():
     d = load("cloth_vbd")
     out = ["| drape | solver | dtype | substeps/frame | wall s per simulated s | CPU s per simulated s | stable | "
@@ -210,7 +221,7 @@ def headline_table():
 
 
 TABLES = {"vbd": vbd_table, "headline": headline_table, "ik": ik_table, "stability": stability_table, "cloth": cloth_table, "scaling": scaling_table,
-          "substeps": substeps_table, "bdf2": bdf2_table,
+          "substeps": substeps_table, "bdf2": bdf2_table, "friction_eps": friction_eps_table,
           "self_contact": self_contact_table, "character": character_table}
 _ROOT = os.path.join(os.path.dirname(RESULTS), os.pardir)
 GUIDES = (os.path.join(_ROOT, "docs", "performance.md"), os.path.join(_ROOT, "README.md"),

@@ -174,6 +174,21 @@ def test_friction_holds_below_atan_mu_and_slides_above(theta):
     check_friction_on_a_tilted_plane(C.ImplicitEuler(), theta)
 
 
+def test_friction_smoothing_length_per_dtype():
+    """A step smooths friction over its dtype's ``FRICTION_EPS_V`` times ``h``: float32's ramp
+    is ten times float64's (docs/performance.md, "Float32 friction")."""
+    from jaxsim.cloth._implicit.problem import StepProblem
+
+    assert C.FRICTION_EPS_V[np.dtype(np.float32)] == 10 * C.FRICTION_EPS_V[np.dtype(np.float64)]
+    h = 1.0 / 60.0
+    for dtype in (np.float32, np.float64):
+        c = scene(dtype)
+        s = C.State.at_rest(c)
+        eps_h = StepProblem.build(c, s.x, s.v, jnp.asarray(h, dtype)).contact.eps_h
+        assert eps_h.dtype == dtype
+        np.testing.assert_allclose(float(eps_h), C.FRICTION_EPS_V[np.dtype(dtype)] * h, rtol=1e-6)
+
+
 # ---- what the compiled step holds ----
 
 def primitives(c):

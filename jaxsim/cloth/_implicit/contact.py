@@ -18,7 +18,7 @@ Li et al. 2020, "Incremental Potential Contact" (IPC):
   ``lambda = -m kappa b'(d)`` and the normal at the start of the step are frozen, and the
   tangential motion ``t = (I - n n^T)(u - s)`` relative to the surface (which moved by
   ``s``) costs ``mu lambda f0(|t|)`` with IPC's ``f0`` (eq. 15), smoothed over
-  ``eps_v h`` (``FRICTION_EPS_V`` m/s).  It is convex in ``u``.
+  ``eps_v h`` (``FRICTION_EPS_V`` m/s, per dtype).  It is convex in ``u``.
 
 Hessian blocks are ``jax.hessian`` of these per-particle terms.  The barrier's block is
 ``b'' n n^T + b' (Hessian of d)``, and for the convex colliders here the second term is
@@ -30,14 +30,21 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from ..._dataclass import pytree_dataclass
 from ..._dtype import tiny
 from .._vec import dot, length
 
-#: IPC's friction smoothing velocity ``eps_v`` (m/s): tangential speeds below it are
-#: treated as static (the friction force ramps from 0 to ``mu lambda`` over it).
-FRICTION_EPS_V = 1e-4
+#: IPC's friction smoothing velocity ``eps_v`` (m/s) per dtype: tangential speeds below it
+#: are treated as static (the friction force ramps from 0 to ``mu lambda`` over it, over the
+#: length ``eps_v h``).  Float32's is ten times float64's.  Newton's iterate rounds the
+#: displacement ``|u| ~ h |v|`` to ``eps h |v|``, which moves the friction force by about
+#: ``mu lambda eps |v| / eps_v``, and the gradient test needs that below ``rtol`` of the
+#: forces: at 1e-4 m/s a float32 drape's impacts (1.4 m/s) leave it at 1e-3 of
+#: ``mu lambda`` against ``rtol = 1e-4``, and Newton stalls (docs/notebook.md, "float32
+#: friction").
+FRICTION_EPS_V = {np.dtype(np.float32): 1e-3, np.dtype(np.float64): 1e-4}
 
 
 def barrier(d, dhat):
@@ -166,7 +173,8 @@ def build(cloth, x0, h, free, prev=None, at=None) -> ContactTerms:
             lam.append(jnp.zeros((len(members),) + cloth.mass.shape, cloth.mass.dtype))
         nrm.append(over(pairs, lambda p: p[0].normal_at(x)))
         slide.append(over(pairs, lambda p: p[0].surface_motion(p[1], x)))
-    return ContactTerms(kappa=kappa, dhat=dhat, eps_h=FRICTION_EPS_V * h, lam=jnp.concatenate(lam),
+    eps_h = FRICTION_EPS_V[np.dtype(x0.dtype)] * h
+    return ContactTerms(kappa=kappa, dhat=dhat, eps_h=eps_h, lam=jnp.concatenate(lam),
                         normal=jnp.concatenate(nrm), slide=jnp.concatenate(slide), start=(x - x0) * free,
                         shift=None if at is None else x0 - at)
 
