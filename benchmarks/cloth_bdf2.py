@@ -1,9 +1,9 @@
-"""BDF2 against backward Euler: error against run time, energy kept, cost per step.
+"""BDF2 and TR-BDF2 against backward Euler: error against run time, energy kept, cost per step.
 
 Accuracy: two undamped cloths released horizontal under g = 9.8 and swinging for 1 s,
 float64, default settings (``SWINGS``): one whose springs are resolved at every step size
 (6x6, sqrt(k/m) = 10 rad/s) and one whose springs are not (16x16, 113 rad/s).  Each
-integrator runs at dt = 1/30, 1/60, 1/120 and 1/240; the reference is BDF2 at dt = 1/1920.
+integrator runs at dt = 1/30, 1/60, 1/120 and 1/240; the reference is TR-BDF2 at dt = 1/1920.
 Per row: the largest position error at 1 s against the reference (m), the share of the
 swing's energy left at 1 s (total energy above the reference's lowest potential), Newton
 iterations per step, and ms of run time per simulated second (warm, compile apart): the
@@ -11,13 +11,14 @@ error-against-time front.
 
 Cost: scenes A (the lab cloth, CG and Cholesky) and B (32x32 and 128x128 grids, CG) of
 ``cloth_ab.py``, and scene C 32x32 at k = 1e3 (no damping, dt = 1/30), float64, from a
-moving state 10 backward-Euler steps in; backward Euler and BDF2 with the same settings
-alternated in one process, median of rounds and the median paired ratio.
+moving state 10 backward-Euler steps in; backward Euler, BDF2 and TR-BDF2 with the same
+settings alternated in one process, median of rounds and the median paired ratio to
+backward Euler.
 
 Contact: ``cloth_substeps.py``'s drape (a 0.5 kg cloth dropped onto a sphere over a floor,
 friction 0.4, k = 1e3, dt = 1/60, 60 steps from rest, float64, default settings) at 16x16
 and 32x32: converged steps, substeps, the closest approach to a collider, the highest
-total energy against the start's, and ms per step, backward Euler and BDF2 alternated.
+total energy against the start's, and ms per step, the three alternated.
 
 Run: ``python benchmarks/cloth_bdf2.py [--quick] [--only-contact]``; writes ``benchmarks/results/cloth_bdf2.json``.
 """
@@ -25,6 +26,7 @@ Run: ``python benchmarks/cloth_bdf2.py [--quick] [--only-contact]``; writes ``be
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import statistics
 import sys
@@ -41,7 +43,7 @@ from _common import time_call, write  # noqa: E402
 import jaxsim  # noqa: E402
 from jaxsim import cloth as C  # noqa: E402
 
-INTEGRATORS = {"backward Euler": C.ImplicitEuler(), "BDF2": C.BDF2()}
+INTEGRATORS = {"backward Euler": C.ImplicitEuler(), "BDF2": C.BDF2(), "TR-BDF2": C.TRBDF2()}
 
 
 SWINGS = {
@@ -64,12 +66,12 @@ def energies(cloth, states):
 def accuracy(name, dts, t_end=1.0, ref_dt=1 / 1920):
     cloth = SWINGS[name]()
     s0 = C.State.at_rest(cloth)
-    ref_states, ref_info = C.rollout(cloth, s0, ref_dt, int(round(t_end / ref_dt)), C.BDF2())
+    ref_states, ref_info = C.rollout(cloth, s0, ref_dt, int(round(t_end / ref_dt)), C.TRBDF2())
     e_ref, u_ref = energies(cloth, ref_states)
     e0 = float(C.total_energy(cloth, s0.x, s0.v))
     low = float(u_ref.min())  # the lowest potential the reference reaches: the swing's energy is e0 - low
     ref_x = np.asarray(ref_states.x[-1])
-    print(f"{name} reference: BDF2 dt=1/{round(1 / ref_dt)}, converged {100 * float(np.mean(ref_info.converged)):.0f}%, "
+    print(f"{name} reference: TR-BDF2 dt=1/{round(1 / ref_dt)}, converged {100 * float(np.mean(ref_info.converged)):.0f}%, "
           f"energy drift {e_ref[-1] - e0:.2e} J of a swing of {e0 - low:.3f} J", flush=True)
     rows = []
     for dt in dts:
@@ -105,11 +107,11 @@ def cost_cases(quick):
 
 
 def cost(quick, rounds):
-    """ms per step of backward Euler and BDF2 with the same settings, alternated in one
+    """ms per step of the integrators with the same settings, alternated in one
     process, from a moving state (10 backward-Euler steps in)."""
     rows = []
     for case, cloth, lin, dt, steps in cost_cases(quick):
-        integs = {"backward Euler": C.ImplicitEuler(linear_solver=lin), "BDF2": C.BDF2(linear_solver=lin)}
+        integs = {name: dataclasses.replace(integ, linear_solver=lin) for name, integ in INTEGRATORS.items()}
         warm, _ = C.rollout(cloth, C.State.at_rest(cloth), dt, 10, integs["backward Euler"])
         s0 = C.State(warm.x[-1], warm.v[-1])
         fns = {name: jax.jit(lambda s, integ=integ: C.rollout(cloth, s, dt, steps, integ)) for name, integ in integs.items()}
@@ -118,7 +120,7 @@ def cost(quick, rounds):
         for _ in range(rounds):  # alternated, so both see the same machine load
             for name, f in fns.items():
                 runs[name].append(time_call(f, s0, repeats=1)["run_s"])
-        ratios = [b / e for b, e in zip(runs["BDF2"], runs["backward Euler"])]
+        ratios = {name: [b / e for b, e in zip(runs[name], runs["backward Euler"])] for name in runs}
         for name, f in fns.items():
             _, info = f(s0)
             row = {"case": case, "integrator": name, "steps": steps, "dt": dt,
@@ -126,17 +128,17 @@ def cost(quick, rounds):
                    "newton_per_step": float(np.mean(info.newton_iters)),
                    "substeps_total": int(jnp.sum(info.substeps)), "converged_share": float(np.mean(info.converged)),
                    "compile_s": compile_s[name]}
-            if name == "BDF2":
-                row["paired_ratio_median"] = statistics.median(ratios)
+            if name != "backward Euler":
+                row["paired_ratio_median"] = statistics.median(ratios[name])
             print(f"{case} {name:14s}: {row['ms_per_step']:.2f} ms/step, Newton {row['newton_per_step']:.2f}/step, "
                   f"substeps {row['substeps_total']}, converged {100 * row['converged_share']:.0f}%"
-                  + (f", BDF2/BE paired {row['paired_ratio_median']:.2f}" if name == "BDF2" else ""), flush=True)
+                  + (f", /BE paired {row['paired_ratio_median']:.2f}" if "paired_ratio_median" in row else ""), flush=True)
             rows.append(row)
     return rows
 
 
 def contact(quick, rounds):
-    """The drape under backward Euler and BDF2 (module doc), alternated in one process."""
+    """The drape under each integrator (module doc), alternated in one process."""
     from cloth_substeps import drape
 
     rows = []
@@ -189,12 +191,12 @@ def main() -> None:
     acc = [r for name in SWINGS for r in accuracy(name, dts)]
     write("cloth_bdf2", {"accuracy": acc, "cost": cost(args.quick, args.rounds), "contact": contact(args.quick, args.rounds),
                          "swings": "released horizontal from rest, no damping, g 9.8, 1 s, float64, default settings; "
-                                   "reference BDF2 at dt 1/1920; resolved 6x6: 0.2 m apart, 1 kg each, k 100, two "
+                                   "reference TR-BDF2 at dt 1/1920; resolved 6x6: 0.2 m apart, 1 kg each, k 100, two "
                                    "corners pinned; stiff 16x16: 0.1 m apart, 1 kg in all, k 50, one corner pinned; "
                                    "energy kept: (E(1 s) - U_min) / (E(0) - U_min), U_min the reference's lowest potential",
                          "cost_scenes": "A: the lab cloth; B: grid(n-1, 0.2) defaults; C: 32x32, 1 kg, k 1e3, g 9.8, "
-                                        "no damping; float64, from 10 backward-Euler steps in; BDF2 and backward "
-                                        "Euler alternated, median of rounds"})
+                                        "no damping; float64, from 10 backward-Euler steps in; backward Euler, "
+                                        "BDF2 and TR-BDF2 alternated, median of rounds, paired ratio to backward Euler"})
 
 
 if __name__ == "__main__":

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 
@@ -163,6 +164,45 @@ def check_friction_on_a_tilted_plane(integ, theta, mu=0.5):
         th = np.radians(theta)
         accel = (speed[-1] - speed[59]) / 1.0
         np.testing.assert_allclose(accel, 9.8 * (np.sin(th) - mu * np.cos(th)), rtol=0.05)
+
+
+def check_batch_equals_loop(scene, integ, steps=2):
+    """``batch_rollout`` over two stiffnesses of ``scene`` equals a loop of ``rollout``s."""
+    scenes = [C.replace(scene, stiffness=scene.stiffness * k) for k in (1.0, 2.0)]
+    s0 = C.State.at_rest(scene)
+    states, _ = C.batch_rollout(C.stack_scenes(scenes), s0, 1 / 30, steps, integ)
+    for i, sc in enumerate(scenes):
+        one, _ = C.rollout(sc, s0, 1 / 30, steps, integ)
+        np.testing.assert_allclose(states.x[i], one.x, atol=1e-10)
+
+
+def check_rollout_grads(scene, integ, steps):
+    """``check_grads`` (reverse mode) of a rollout of ``scene`` under ``integ`` in the
+    springs' stiffness scale and the initial velocities (float64)."""
+    from jax.test_util import check_grads
+
+    s0 = C.State.at_rest(scene)
+
+    def loss(k, v0):
+        sc = C.replace(scene, stiffness=scene.stiffness * k)
+        states, _ = C.rollout(sc, C.State(s0.x, v0), 1 / 30, steps, integ)
+        return jnp.sum(states.x[-1, :, 1] ** 2) + jnp.sum(states.v[-1] ** 2)
+
+    v0 = jnp.zeros_like(s0.x).at[:, 2].set(0.1)
+    check_grads(loss, (jnp.asarray(1.0), v0), order=1, modes=("rev",), atol=1e-5, rtol=1e-5)
+
+
+def check_substeps_converge_a_stiff_rollout(integ, newton_iters, whole):
+    """On a stiff 6x6 grid (k = 1e4, 1/36 kg) that ``newton_iters`` Newton iterations do
+    not converge, adaptive substeps do; without them every step is ``whole`` substeps
+    (the integrator's count for a step not halved) and some step is unconverged."""
+    stiff = C.grid(5, 0.2, mass=1 / 36, stiffness=1e4, gravity=9.8, damping=0.0, dtype=np.float64)
+    integ = dataclasses.replace(integ, newton_iters=newton_iters, extrapolate=0, max_substep_depth=3)
+    _, infos = C.rollout(stiff, C.State.at_rest(stiff), 1 / 30, 8, integ)
+    assert bool(jnp.all(infos.converged)) and int(jnp.max(infos.substeps)) > whole
+    _, plain = C.rollout(stiff, C.State.at_rest(stiff), 1 / 30, 8, dataclasses.replace(integ, max_substep_depth=0))
+    assert not bool(jnp.all(plain.converged))
+    assert np.asarray(plain.substeps).tolist() == [whole] * 8
 
 
 def _sat_axes(P, Q):

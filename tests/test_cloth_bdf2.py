@@ -16,7 +16,8 @@ from jaxsim import cloth as C
 from jaxsim.cloth import _step
 from jaxsim.cloth._implicit.bdf2 import MAX_RATIO, Before
 from jaxsim.cloth._layout import layout_of
-from _helpers import check_friction_on_a_tilted_plane
+from _helpers import (check_batch_equals_loop, check_friction_on_a_tilted_plane, check_rollout_grads,
+                      check_substeps_converge_a_stiff_rollout)
 
 jax.config.update("jax_enable_x64", True)
 
@@ -88,13 +89,7 @@ def test_substeps_converge_a_stiff_bdf2_rollout():
     """Adaptive substeps serve BDF2 as they serve backward Euler: a stiff scene that four
     Newton iterations do not converge (``test_cloth_substeps.SCENE``) converges in halves
     and quarters."""
-    stiff = C.grid(5, 0.2, mass=1 / 36, stiffness=1e4, gravity=9.8, damping=0.0, dtype=np.float64)
-    integ = dataclasses.replace(BDF, newton_iters=4, extrapolate=0, max_substep_depth=3)
-    _, infos = C.rollout(stiff, C.State.at_rest(stiff), 1 / 30, 8, integ)
-    assert bool(jnp.all(infos.converged)) and int(jnp.max(infos.substeps)) > 1
-    _, plain = C.rollout(stiff, C.State.at_rest(stiff), 1 / 30, 8, dataclasses.replace(integ, max_substep_depth=0))
-    assert not bool(jnp.all(plain.converged))
-    assert np.asarray(plain.substeps).tolist() == [1] * 8
+    check_substeps_converge_a_stiff_rollout(BDF, newton_iters=4, whole=1)
 
 
 def test_step_with_previous_equals_the_rollout():
@@ -163,25 +158,11 @@ def test_bdf2_keeps_the_energy_backward_euler_damps():
 
 
 def test_batch_rollout_equals_a_loop_of_rollouts():
-    scenes = [C.replace(SCENE, stiffness=SCENE.stiffness * k) for k in (1.0, 2.0)]
-    batch = C.stack_scenes(scenes)
-    s0 = C.State.at_rest(SCENE)
-    states, infos = C.batch_rollout(batch, s0, 1 / 30, 4, BDF)
-    for i, sc in enumerate(scenes):
-        one, _ = C.rollout(sc, s0, 1 / 30, 4, BDF)
-        np.testing.assert_allclose(states.x[i], one.x, atol=1e-10)
+    check_batch_equals_loop(SCENE, BDF, steps=4)
 
 
 def test_gradients_through_a_bdf2_rollout():
-    s0 = C.State.at_rest(SCENE)
-
-    def loss(k, v0):
-        sc = C.replace(SCENE, stiffness=SCENE.stiffness * k)
-        states, _ = C.rollout(sc, C.State(s0.x, v0), 1 / 30, 3, BDF)
-        return jnp.sum(states.x[-1, :, 1] ** 2) + jnp.sum(states.v[-1] ** 2)
-
-    v0 = jnp.zeros_like(s0.x).at[:, 2].set(0.1)
-    check_grads(loss, (jnp.asarray(1.0), v0), order=1, modes=("rev",), atol=1e-5, rtol=1e-5)
+    check_rollout_grads(SCENE, BDF, steps=3)
 
 
 def test_bad_inputs():

@@ -135,7 +135,7 @@ def test_bad_pins_are_rejected(pins, match):
 
 
 def test_pins_need_an_implicit_integrator_and_pinned_particles():
-    with pytest.raises(ValueError, match="ImplicitEuler or BDF2"):
+    with pytest.raises(ValueError, match="ImplicitEuler, BDF2 or TRBDF2"):
         C.rollout(SCENE, START, DT, T, C.ExplicitEuler(), pins=PATH)
     bare = C.grid(4, 0.1, pins=[], dtype=np.float64)
     with pytest.raises(ValueError, match="has none"):

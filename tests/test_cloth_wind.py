@@ -119,7 +119,7 @@ def test_batch_rollout_with_wind_equals_single_rollouts():
     (lambda: C.rollout(FACING, AT_REST, DT, 3, wind=np.zeros((2, 3))), r"shape \(3, 3\)"),
     (lambda: C.rollout(C.grid(3, 0.1), C.State.at_rest(C.grid(3, 0.1)), DT, 3, wind=np.zeros((3, 3))),
      "needs a scene with drag or lift"),
-    (lambda: C.rollout(FACING, AT_REST, DT, 3, C.ExplicitEuler()), "ImplicitEuler or BDF2"),
+    (lambda: C.rollout(FACING, AT_REST, DT, 3, C.ExplicitEuler()), "ImplicitEuler, BDF2 or TRBDF2"),
 ])
 def test_bad_wind_input_is_rejected(make, match):
     with pytest.raises(ValueError, match=match):

@@ -8,7 +8,7 @@ from . import reference
 from ._model.energy import energy, forces, kinetic_energy, spring_energy, total_energy
 from ._model.mesh import disk, from_mesh, grid_triangles, mesh_springs
 from ._model.obj import TABLECLOTH_OBJ, read_obj, write_obj, write_obj_sequence
-from ._integrators import AUTO_DENSE_MAX_PARTICLES, BDF2, ExplicitEuler, ImplicitEuler
+from ._integrators import AUTO_DENSE_MAX_PARTICLES, BDF2, TRBDF2, ExplicitEuler, ImplicitEuler
 from ._linear import CG, Auto, Cholesky, Jacobi, TwoLevel
 from ._model.scene import Cloth, State, grid, grid_springs, lab_cloth, pin_mask, replace
 from ._info import StepInfo
@@ -16,7 +16,7 @@ from ._step import rollout, step
 from ._implicit.trace import HESSIANS, NewtonTrace
 
 __all__ = [
-    "Cloth", "State", "StepInfo", "NewtonTrace", "HESSIANS", "EnergyReport", "energy_report", "ExplicitEuler", "ImplicitEuler", "BDF2", "AUTO_DENSE_MAX_PARTICLES",
+    "Cloth", "State", "StepInfo", "NewtonTrace", "HESSIANS", "EnergyReport", "energy_report", "ExplicitEuler", "ImplicitEuler", "BDF2", "TRBDF2", "AUTO_DENSE_MAX_PARTICLES",
     "Cholesky", "CG", "Auto", "Jacobi", "TwoLevel",
     "grid", "grid_springs", "lab_cloth", "pin_mask", "replace", "energy", "spring_energy", "forces",
     "Plane", "Sphere", "Capsule", "FRICTION_EPS_V", "from_mesh", "mesh_springs", "grid_triangles", "disk",

@@ -13,7 +13,7 @@ from .._dataclass import is_concrete
 from .._validate import check_finite, check_real, check_shape
 from ._implicit.resume import Resume
 from ._info import StepInfo
-from ._integrators import BDF2, ExplicitEuler, ImplicitEuler
+from ._integrators import BDF2, TRBDF2, ExplicitEuler, ImplicitEuler
 from ._model.colliders import COLLIDERS, collider_kinds, count_inside, describe_inside
 from ._model.scene import Cloth, State
 from ._self.intersect import first_intersection
@@ -50,10 +50,10 @@ def check_inputs(cloth: Cloth, state: State, dt, integrator) -> State:
     if cloth.self_contact and isinstance(integrator, ExplicitEuler):
         raise ValueError("self_contact needs ImplicitEuler: self-contact is a barrier in its incremental potential")
     if cloth.aero and isinstance(integrator, ExplicitEuler):
-        raise ValueError("drag and lift need ImplicitEuler or BDF2: the wind is a term of their incremental potential")
-    if cloth.self_contact and isinstance(integrator, BDF2):
-        raise ValueError("self_contact is not supported with BDF2 yet (its shifted base may cross a surface); "
-                         "use ImplicitEuler")
+        raise ValueError("drag and lift need ImplicitEuler, BDF2 or TRBDF2: the wind is a term of their incremental potential")
+    if cloth.self_contact and isinstance(integrator, (BDF2, TRBDF2)):
+        raise ValueError(f"self_contact is not supported with {type(integrator).__name__} yet (its shifted base may "
+                         "cross a surface); use ImplicitEuler")
     out = [particle_array(name, a, cloth) for name, a in (("state.x", state.x), ("state.v", state.v))]
     if cloth.self_contact and is_concrete(state.x):
         hit = first_intersection(np.asarray(out[0], np.float64), cloth.contact_faces, cloth.contact_edges)
@@ -120,7 +120,7 @@ def check_pins(cloth: Cloth, pins, lead: tuple, integrator):
     if pins is None:
         return None
     if isinstance(integrator, ExplicitEuler):
-        raise ValueError("pins= needs ImplicitEuler or BDF2: explicit Euler's pins stay where they are")
+        raise ValueError("pins= needs ImplicitEuler, BDF2 or TRBDF2: explicit Euler's pins stay where they are")
     pinned = cloth.pinned
     K = int(np.sum(np.asarray(pinned), axis=-1).max()) if is_concrete(pinned) else None
     if K == 0:

@@ -15,8 +15,9 @@ from ._explicit import explicit
 from ._implicit.bdf2 import Before
 from ._implicit.extrapolate import History
 from ._implicit.step import implicit
+from ._implicit import trbdf2
 from ._info import StepInfo
-from ._integrators import BDF2, ExplicitEuler, ImplicitEuler
+from ._integrators import BDF2, TRBDF2, ExplicitEuler, ImplicitEuler
 from ._layout import Layout, layout_of
 from ._model.scene import Cloth, State
 
@@ -44,12 +45,17 @@ def _step(cloth, layout, state, dt, integrator, prev=None, guess=None, history=N
     """``(State, StepInfo, Before | None)``: one step on ``cloth`` with its ``layout``
     (``_layout.layout_of``); an implicit one may start Newton from ``guess`` (end-of-step
     positions, ``(N, 3)``) or from the extrapolation of a :class:`History`; ``before``:
-    BDF2's memory (``_implicit.bdf2.Before``; ``None`` otherwise); ``pins``: ``(K, 3)``
+    BDF2's memory (``_implicit.bdf2.Before``), TR-BDF2's (``_implicit.trbdf2.Stage``),
+    or ``None``; ``pins``: ``(K, 3)``
     the pinned particles' positions at the end of the step, or ``None``."""
     if not cloth.aero and cloth.wind is not None:  # the step never reads them
         cloth = dataclasses.replace(cloth, wind=None, drag=None, lift=None)
     if isinstance(integrator, ExplicitEuler):
         return (*_explicit(cloth, state, dt, integrator, layout), None)
+    if isinstance(integrator, TRBDF2):
+        extrapolate = bool(integrator.extrapolate) and not cloth.colliders and not cloth.self_contact
+        return trbdf2.step(cloth, state, dt, integrator, prev, layout, before, pin_targets(cloth, state.x, pins),
+                           extrapolate, guess)
     start, tight = None, False
     if guess is not None:
         start = lambda p: (guess - p.x0) - p.prediction  # noqa: E731
@@ -102,6 +108,8 @@ def step(cloth: Cloth, state: State, dt, integrator=ImplicitEuler(), guess=None,
         before = Before(px, particle_array("previous.v", previous.v, cloth), dt)
     elif isinstance(integrator, BDF2):
         before = Before.none(state.x, state.v)
+    elif isinstance(integrator, TRBDF2):
+        before = trbdf2.first(cloth, state.x, state.v)
     pins = check_pins(cloth, pins, (), integrator)
     new, info, _ = _step(cloth, layout_of(cloth.springs, cloth.rest), state, dt, integrator, guess=guess,
                          before=before, pins=pins)
@@ -111,8 +119,8 @@ def step(cloth: Cloth, state: State, dt, integrator=ImplicitEuler(), guess=None,
 @functools.partial(jax.jit, static_argnames=("n_steps", "integrator", "checkpoint"))
 def _rollout(cloth, layout, state, dt, n_steps, integrator, checkpoint=False, path=None, resume=None, pins=None,
              wind=None):
-    extrapolate = (isinstance(integrator, ImplicitEuler) and integrator.extrapolate and not cloth.colliders
-                   and not cloth.self_contact)
+    extrapolate = (isinstance(integrator, ImplicitEuler) and not isinstance(integrator, TRBDF2)
+                   and integrator.extrapolate and not cloth.colliders and not cloth.self_contact)
 
     def f(carry, xs):
         cols, pin, air = xs
@@ -133,6 +141,8 @@ def _rollout(cloth, layout, state, dt, n_steps, integrator, checkpoint=False, pa
     before = None
     if isinstance(integrator, BDF2):
         before = Before.none(state.x, state.v) if resume is None else resume.before(state.x, state.v, dt)
+    elif isinstance(integrator, TRBDF2):  # with resume too: the forces at the state (_implicit.trbdf2)
+        before = trbdf2.first(cloth, state.x, state.v, layout)
     _, (states, infos) = lax.scan(f, (state, prev0, history, before), (path, pins, wind), length=n_steps)
     return states, infos
 

@@ -59,10 +59,17 @@ class Before:
         """No step before ``(x, v)``: the next step is backward Euler."""
         return Before(x, v, jnp.zeros((), x.dtype))
 
-    def after(self, x, v, h, taken) -> "Before":
-        """The memory after a step of length ``h`` from ``(x, v)``, where it was ``taken``."""
+    def after(self, x, v, h, taken, p=None, w=None) -> "Before":
+        """The memory after a step of length ``h`` from ``(x, v)``, where it was ``taken``
+        (``p``, ``w``: the step's problem and solution, which BDF2 does not read; the
+        memories' one protocol, ``_implicit.trbdf2``)."""
         keep = lambda new, old: jnp.where(taken, new, old)  # noqa: E731
         return Before(keep(x, self.x), keep(v, self.v), keep(jnp.asarray(h, self.h.dtype), self.h))
+
+    def problem(self, cloth, x, v, h, prev, layout, pins=None) -> pr.StepProblem:
+        """The problem of a (sub)step of ``h`` from ``(x, v)`` with this memory (module doc)."""
+        xb, vb, hb = base(x, v, self, h)
+        return pr.StepProblem.build(cloth, xb, vb, hb, prev, layout, start=(x, h), pins=pins)
 
 
 def ratio(before: Before, h) -> jax.Array:
@@ -81,11 +88,11 @@ def base(x, v, before: Before, h):
     return x + b * (x - before.x), v + b * (v - before.v), beta * h
 
 
-def step_problem(cloth, x, v, h, prev, layout, before: Before | None, pins=None) -> pr.StepProblem:
-    """The problem of a (sub)step of ``h`` from ``(x, v)``: backward Euler's, or BDF2's with
-    its memory ``before`` (contact terms from the step's own start, module doc); ``pins``:
-    ``(N, 3)`` the pinned particles' positions at its end, or ``None`` (they stay)."""
+def step_problem(cloth, x, v, h, prev, layout, before, pins=None) -> pr.StepProblem:
+    """The problem of a (sub)step of ``h`` from ``(x, v)``: backward Euler's, or that of a
+    memory ``before`` (BDF2's :class:`Before`, or a TR-BDF2 stage's, ``_implicit.trbdf2``:
+    contact terms from the step's own start, module doc); ``pins``: ``(N, 3)`` the pinned
+    particles' positions at its end, or ``None`` (they stay)."""
     if before is None:
         return pr.StepProblem.build(cloth, x, v, h, prev, layout, pins=pins)
-    xb, vb, hb = base(x, v, before, h)
-    return pr.StepProblem.build(cloth, xb, vb, hb, prev, layout, start=(x, h), pins=pins)
+    return before.problem(cloth, x, v, h, prev, layout, pins)

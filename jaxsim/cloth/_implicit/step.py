@@ -1,4 +1,4 @@
-"""One implicit step: backward Euler or BDF2, on the whole step or in adaptive substeps."""
+"""One implicit step: backward Euler, BDF2 or a TR-BDF2 stage, on the whole step or in adaptive substeps."""
 
 from __future__ import annotations
 
@@ -25,8 +25,9 @@ def implicit(cloth: Cloth, state: State, dt, integ: ImplicitEuler, prev=None, st
 
     ``prev``: the colliders at the start of the step when they move; ``start``: Newton's
     first iterate as a function of the step's problem (``p -> w``), or ``None``;
-    ``tight``: its ``tight_first``; ``before``: BDF2's memory (``_implicit.bdf2``), ``None``
-    for backward Euler, and the memory for the next step is returned (``None`` likewise);
+    ``tight``: its ``tight_first``; ``before``: BDF2's memory (``_implicit.bdf2``) or a TR-BDF2
+    stage's (``_implicit.trbdf2``), ``None`` for backward Euler, and the memory for the
+    next step is returned (``None`` likewise);
     ``pins``: ``(N, 3)`` the pinned particles' positions at the end of the step (other
     rows unused), or ``None``: they stay.
     """
@@ -48,7 +49,8 @@ def _whole(cloth: Cloth, state: State, dt, integ: ImplicitEuler, prev, start, ti
         start = None
     s = newton(p_const, integ, rtol, start, tight_first=tight)
     end = s.iterate
-    x, v = sb.advance(p, solution(integ, end.w, p))
+    w = solution(integ, end.w, p)
+    x, v = sb.advance(p, w)
     ok = valid & ~s.fail & bounded(cloth, x, v)
     x, v = jnp.where(ok, x, x0), jnp.where(ok, v, v0)
     gnorm = jnp.linalg.norm(end.grad)
@@ -57,7 +59,7 @@ def _whole(cloth: Cloth, state: State, dt, integ: ImplicitEuler, prev, start, ti
                     converged=ok & (end.rel <= rtol), stable=ok, valid=valid,
                     cond_bound=pr.condition_bound(p_const, end.terms), substeps=ok.astype(jnp.int32), trace=s.trace,
                     pair_overflow=s.overflow)
-    return State(x, v), info, None if before is None else before.after(x0, v0, h, ok)
+    return State(x, v), info, None if before is None else before.after(x0, v0, h, ok, p, w)
 
 
 def _substepped(cloth: Cloth, state: State, dt, integ: ImplicitEuler, prev, start, tight, layout, before, pins):
@@ -81,5 +83,5 @@ def _substepped(cloth: Cloth, state: State, dt, integ: ImplicitEuler, prev, star
                     converged=ok & t.converged, stable=ok, valid=valid, cond_bound=t.cond_bound,
                     substeps=jnp.where(ok, found.count, 0), trace=t.trace, pair_overflow=t.overflow)
     if before is not None:
-        last = before.after(last.x, last.v, last.h, ok)
+        last = jax.tree_util.tree_map(lambda a, b: jnp.where(ok, a, b), last, before)
     return State(jnp.where(ok, x, x0), jnp.where(ok, v, v0)), info, last

@@ -121,7 +121,8 @@ class SubstepLoop:
       levels: ``(2^D,)`` int32 their levels.
       failed: ``()`` bool, an attempt at ``level = D`` could not be taken (the step fails).
       totals: the diagnostics so far (:class:`Totals`).
-      before: BDF2's memory at ``pos`` (``_implicit.bdf2.Before``), ``None`` for backward Euler.
+      before: the memory at ``pos`` (BDF2's ``_implicit.bdf2.Before``, or a TR-BDF2 stage's,
+        ``_implicit.trbdf2``), ``None`` for backward Euler.
     """
 
     x: jax.Array
@@ -207,7 +208,7 @@ def search(cloth, x0, v0, h, integ, rtol, prev, layout, start, tight, before, pi
                            tries=c.tries + 1, accel=keep((v - c.v) / hk, accel),
                            ws=put(c.ws, end.w), levels=put(c.levels, c.level),
                            failed=failed, totals=totals,
-                           before=None if c.before is None else c.before.after(c.x, c.v, hk, accept))
+                           before=None if c.before is None else c.before.after(c.x, c.v, hk, accept, p, end.w))
 
     z = jnp.zeros((), dtype)
     trace = NewtonTrace.empty(integ.newton_iters, dtype) if integ.trace else None
@@ -234,8 +235,9 @@ def replay(cloth, x0, v0, h, integ, prev, layout, found: SubstepLoop, before=Non
         hk = h * (size.astype(x.dtype) / 2**D)
         ck, pk = substep_scene(cloth, prev, pos, size, D)
         p = bdf2.step_problem(ck, x, v, hk, pk, layout, mem, pins_at(x0, pins, pos, size, D))
-        x1, v1 = advance(p, solution(integ, w, p))
-        return x1, v1, pos + size, None if mem is None else bdf2.Before(x, v, hk)
+        w = solution(integ, w, p)
+        x1, v1 = advance(p, w)
+        return x1, v1, pos + size, None if mem is None else mem.after(x, v, hk, True, p, w)
 
     def body(carry, slot):
         i, w, level = slot
