@@ -124,6 +124,17 @@ def test_gradients_through_a_tr_bdf2_rollout():
     check_rollout_grads(SCENE, TR, steps=2)
 
 
+def test_moving_pins_end_each_step_exactly_on_their_path():
+    """Pins move on straight lines through both stages and end each step exactly on the
+    path (the first stage ends at ``gamma`` of the way)."""
+    rows = np.flatnonzero(np.asarray(SCENE.pinned))
+    p0 = np.asarray(SCENE.rest)[rows]
+    path = np.stack([p0 + np.array([0.05 * (t + 1), 0.0, 0.0]) for t in range(4)])
+    states, infos = C.rollout(SCENE, C.State.at_rest(SCENE), 1 / 30, 4, TR, pins=path)
+    assert bool(jnp.all(infos.converged))
+    np.testing.assert_array_equal(np.asarray(states.x)[:, rows], path)
+
+
 def _drape(dtype):
     """A 4x4 cloth of 0.16 kg dropped onto a floor and a sphere, with friction."""
     cols = (C.Plane(np.array([0.0, 1.0, 0.0]), 0.0, friction=0.2), C.Sphere(np.array([0.0, 0.5, 0.0]), 0.3, friction=0.2))
