@@ -41,7 +41,7 @@ from .step import implicit
 from .substeps import advance, between
 
 #: The trapezoidal stage's share of the step: ``2 - sqrt(2)`` (both stages' Newton
-#: matrices are then ``M / (gamma h / 2)^2 + K``, Hosea & Shampine 1996 §2).
+#: matrices are then ``M / (gamma h / 2)^2 + K``: the BDF2 stage's ``beta h`` is ``gamma h / 2``).
 GAMMA = 2.0 - math.sqrt(2.0)
 
 
