@@ -11,7 +11,9 @@ Cases (float64, ``benchmarks/cloth_step.py``'s scenes): A the lab cloth (CG, Cho
 explicit); B 32x32 and B 128x128 (CG, on planes); C 32x32 k = 1e5 (two-level CG, planes and grid-block
 aggregates); the tablecloth mesh (CG and two-level CG: the particle layout, gathers and
 voxel aggregates; pinned at its centre and one edge); B 16x16 over a sphere (contact); two 8x8 layers over a
-sphere with self-contact; ``batch_rollout`` of 4 B 16x16 scenes.
+sphere with self-contact; ``batch_rollout`` of 4 B 16x16 scenes; ``cloth_vbd.py``'s drape onto a
+sphere and a floor with friction, default ``ImplicitEuler()``: 32x32 float64 over the first 30
+frames, and 64x64 float32 over 15 frames from frame 15 (where it lies on the sphere).
 
 Run: ``python benchmarks/cloth_ab.py --baseline REV [--rounds 5]``; writes
 ``benchmarks/results/cloth_ab.json``.
@@ -46,6 +48,29 @@ def layers(C, n=8):
                        colliders=(C.Sphere(np.array([0.0, 0.25, 0.0]), 0.25),))
 
 
+def drape(C, n, dtype):
+    """``cloth_vbd.py``'s drape: 0.5 kg, 1.2 m square, k = 1e3, onto a sphere over a floor, friction 0.4."""
+    span = 1.2
+    sphere = C.Sphere(np.array([0.0, 0.5, 0.0]), 0.35, friction=0.4)
+    floor = C.Plane(np.array([0.0, 1.0, 0.0]), 0.0, friction=0.4)
+    return C.grid(n - 1, span / (n - 1), origin=(-span / 2, 0.95, -span / 2), mass=0.5 / n**2, stiffness=1e3,
+                  damping=0.01, gravity=9.8, pins=[], colliders=(sphere, floor), dtype=dtype)
+
+
+_STARTS = {}
+
+
+def _drape_start(n, dtype, frames):
+    """``(x, v)`` numpy: the drape after ``frames`` frames, by this checkout's code (computed once)."""
+    key = (n, np.dtype(dtype).name, frames)
+    if key not in _STARTS:
+        C = jaxsim.cloth
+        c = drape(C, n, dtype)
+        states, _ = C.rollout(c, C.State.at_rest(c), 1 / 60, frames, C.ImplicitEuler())
+        _STARTS[key] = (np.asarray(states.x[-1]), np.asarray(states.v[-1]))
+    return _STARTS[key]
+
+
 def cases(pkg):
     """``{name: (jitted rollout of a state, the state)}`` for one package."""
     C = pkg.cloth
@@ -73,6 +98,14 @@ def cases(pkg):
             states, _ = C.rollout(c, s0, dt, 20, C.ImplicitEuler())
             s0 = C.State(states.x[-1], states.v[-1])
         out[name] = (jax.jit(lambda s, c=c, integ=integ, dt=dt, n=n: C.rollout(c, s, dt, n, integ)), s0)
+    for name, n, dtype, start, steps in (("drape 32x32", 32, np.float64, 0, 30),
+                                         ("drape 64x64 float32", 64, np.float32, 15, 15)):
+        c = drape(C, n, dtype)
+        s0 = C.State.at_rest(c)
+        if start:  # the same start for both packages: the current one's rollout, as arrays
+            x, v = _drape_start(n, dtype, start)
+            s0 = C.State(jnp.asarray(x, dtype), jnp.asarray(v, dtype))
+        out[name] = (jax.jit(lambda s, c=c, steps=steps: C.rollout(c, s, 1 / 60, steps, C.ImplicitEuler())), s0)
     small = C.grid(15, 0.2, dtype=np.float64)
     scenes = [C.replace(small, stiffness=k) for k in (50.0, 100.0, 200.0, 400.0)]
     out["batch_rollout 4 x B 16x16"] = (

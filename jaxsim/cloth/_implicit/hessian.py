@@ -126,7 +126,10 @@ class HessianOps:
             out = self.springs(A, v) + inertia * self.m / h**2 * v
             if pairs is not None:
                 out = out + self.to_cg(pairs.matvec(self.from_cg(v)))
-            return out if C_cg is None else out + self.matvec(C_cg, v)
+            # the contact product written once: fused into the springs' padded sum, XLA:CPU
+            # ran the whole product 2.5x slower (64x64 drape, float32, planes: 95 against
+            # 38 us; docs/notebook.md, 2026-12-06 (night))
+            return out if C_cg is None else out + materialized(self.matvec(C_cg, v))
 
         return apply
 
