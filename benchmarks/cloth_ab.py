@@ -34,6 +34,7 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, os.path.dirname(__file__))
 from _common import ab_arguments, baseline_package, run_once, write  # noqa: E402
+from cloth_substeps import drape  # noqa: E402
 
 import jaxsim  # noqa: E402
 
@@ -48,15 +49,6 @@ def layers(C, n=8):
                        colliders=(C.Sphere(np.array([0.0, 0.25, 0.0]), 0.25),))
 
 
-def drape(C, n, dtype):
-    """``cloth_vbd.py``'s drape: 0.5 kg, 1.2 m square, k = 1e3, onto a sphere over a floor, friction 0.4."""
-    span = 1.2
-    sphere = C.Sphere(np.array([0.0, 0.5, 0.0]), 0.35, friction=0.4)
-    floor = C.Plane(np.array([0.0, 1.0, 0.0]), 0.0, friction=0.4)
-    return C.grid(n - 1, span / (n - 1), origin=(-span / 2, 0.95, -span / 2), mass=0.5 / n**2, stiffness=1e3,
-                  damping=0.01, gravity=9.8, pins=[], colliders=(sphere, floor), dtype=dtype)
-
-
 _STARTS = {}
 
 
@@ -65,7 +57,7 @@ def _drape_start(n, dtype, frames):
     key = (n, np.dtype(dtype).name, frames)
     if key not in _STARTS:
         C = jaxsim.cloth
-        c = drape(C, n, dtype)
+        c = drape(n, dtype, cloth=C)
         states, _ = C.rollout(c, C.State.at_rest(c), 1 / 60, frames, C.ImplicitEuler())
         _STARTS[key] = (np.asarray(states.x[-1]), np.asarray(states.v[-1]))
     return _STARTS[key]
@@ -100,7 +92,7 @@ def cases(pkg):
         out[name] = (jax.jit(lambda s, c=c, integ=integ, dt=dt, n=n: C.rollout(c, s, dt, n, integ)), s0)
     for name, n, dtype, start, steps in (("drape 32x32", 32, np.float64, 0, 30),
                                          ("drape 64x64 float32", 64, np.float32, 15, 15)):
-        c = drape(C, n, dtype)
+        c = drape(n, dtype, cloth=C)
         s0 = C.State.at_rest(c)
         if start:  # the same start for both packages: the current one's rollout, as arrays
             x, v = _drape_start(n, dtype, start)

@@ -37,7 +37,10 @@ def scene_c(n, k, dtype):
     return C.grid(n - 1, 0.2, mass=1.0 / n**2, stiffness=k, gravity=9.8, damping=0.0, dtype=dtype)
 
 
-def drape(n, dtype, k=1e3, friction=0.4):
+def drape(n, dtype, k=1e3, friction=0.4, cloth=C):
+    """The drape: 0.5 kg, 1.2 m square, onto a sphere over a floor; ``cloth``: the ``jaxsim.cloth``
+    module that builds it (``cloth_ab.py`` passes a baseline revision's)."""
+    C = cloth
     span = 1.2
     sphere = C.Sphere(np.array([0.0, 0.5, 0.0]), 0.35, friction=friction)
     floor = C.Plane(np.array([0.0, 1.0, 0.0]), 0.0, friction=friction)
