@@ -106,7 +106,10 @@ def tangent_balls(Jac, L, g, dofs: Dofs, table, dtype):
     u1 = unit(Ds, on_cone)
     n2 = Dt - jnp.sum(Dt * u1, -1, keepdims=True) * u1
     u2 = unit(n2, on_end)
+    # u2 is orthogonal to u1, so the two projections are one, P = I - u1 u1^T - u2 u2^T (K, 3, 3),
+    # applied as three broadcast products: two einsums per projection (batched dot_generals
+    # under vmap) made this function 2x slower (docs/notebook.md, "LM's projector").
+    P = jnp.eye(3, dtype=dtype) - u1[:, :, None] * u1[:, None, :] - u2[:, :, None] * u2[:, None, :]
     C = Jac[:, cs]  # (m, K, 3)
-    C = C - jnp.einsum("mk,ki->mki", jnp.einsum("mki,ki->mk", C, u1), u1)
-    C = C - jnp.einsum("mk,ki->mki", jnp.einsum("mki,ki->mk", C, u2), u2)
+    C = sum(C[:, :, a, None] * P[:, a, :] for a in range(3))
     return Jac.at[:, cs.reshape(-1)].set(C.reshape(Jac.shape[0], -1))
