@@ -12,7 +12,7 @@ import pytest
 from jax.test_util import check_grads
 
 from jaxsim import cloth as C
-from _helpers import host_bisection
+from _helpers import host_bisection, host_rollout_bisection
 
 jax.config.update("jax_enable_x64", True)
 
@@ -27,19 +27,31 @@ PLAIN = dataclasses.replace(SUB, max_substep_depth=0)
 
 
 def test_substeps_equal_the_host_recursion_of_halved_steps():
+    """Each step after the first starts at the level the step before left
+    (``StepInfo.next_level``), as the host's rollout of bisections does."""
     states, infos = C.rollout(SCENE, C.State.at_rest(SCENE), DT, 6, SUB)
-    s = C.State.at_rest(SCENE)
-    counts = []
-    for t in range(6):
-        s, n, iters, conv = host_bisection(SCENE, s, DT, 0, SUB.max_substep_depth, PLAIN)
-        counts.append(n)
+    host = host_rollout_bisection(SCENE, C.State.at_rest(SCENE), DT, 6, SUB.max_substep_depth, PLAIN)
+    for t, (s, n, iters, conv, level) in enumerate(host):
         np.testing.assert_allclose(states.x[t], s.x, rtol=0, atol=1e-12)
         np.testing.assert_allclose(states.v[t], s.v, rtol=0, atol=1e-10)
         assert int(infos.newton_iters[t]) == iters
         assert bool(infos.converged[t]) == conv
-    assert np.asarray(infos.substeps).tolist() == counts
+        assert int(infos.substeps[t]) == n and int(infos.next_level[t]) == level
+    counts = np.asarray(infos.substeps).tolist()
     assert max(counts) > 2 and min(counts) >= 2  # the scene exercises two levels of halving
+    assert int(infos.next_level[0]) > 0  # and the memory: later steps skip the whole attempt
     assert bool(jnp.all(infos.converged))
+
+
+def test_a_step_alone_attempts_the_whole_step_first():
+    """``step`` has no memory: from the state a rollout reached it bisects from level 0, as
+    the host recursion does."""
+    states, _ = C.rollout(SCENE, C.State.at_rest(SCENE), DT, 2, SUB)
+    s = C.State(states.x[0], states.v[0])
+    new, info = C.step(SCENE, s, DT, SUB)
+    ref, n, iters, _ = host_bisection(SCENE, s, DT, 0, SUB.max_substep_depth, PLAIN)
+    np.testing.assert_allclose(new.x, ref.x, rtol=0, atol=1e-12)
+    assert int(info.substeps) == n and int(info.newton_iters) == iters
 
 
 def test_without_substeps_the_same_scene_does_not_converge():

@@ -52,6 +52,11 @@ class StepInfo:
       pair_overflow: with ``Cloth.self_contact``: a motion had more self-contact pairs
         than ``Cloth.self_contact_pairs`` slots (an iteration that met it was not taken,
         so the step is retried in substeps or not converged); ``None`` without self-contact.
+      next_level: with adaptive substeps, ``()`` int32: a ``rollout``'s next step first
+        attempts ``dt / 2^next_level`` (the coarsest substep this step took, or one level
+        coarser after a step whose substeps each converged at once, within a quarter of
+        ``newton_iters``; ``_implicit.substeps.next_level``); 0 after a step taken whole.
+        ``None`` without substeps.
     """
 
     newton_iters: jax.Array
@@ -68,3 +73,4 @@ class StepInfo:
     substeps: jax.Array
     trace: NewtonTrace | None = None
     pair_overflow: jax.Array | None = None
+    next_level: jax.Array | None = None

@@ -41,13 +41,15 @@ def pin_targets(cloth: Cloth, x, pins):
 
 
 @functools.partial(jax.jit, static_argnames=("integrator",))
-def _step(cloth, layout, state, dt, integrator, prev=None, guess=None, history=None, before=None, pins=None):
+def _step(cloth, layout, state, dt, integrator, prev=None, guess=None, history=None, before=None, pins=None,
+          level0=None):
     """``(State, StepInfo, Before | None)``: one step on ``cloth`` with its ``layout``
     (``_layout.layout_of``); an implicit one may start Newton from ``guess`` (end-of-step
     positions, ``(N, 3)``) or from the extrapolation of a :class:`History`; ``before``:
     BDF2's memory (``_implicit.bdf2.Before``), TR-BDF2's (``_implicit.trbdf2.Stage``),
     or ``None``; ``pins``: ``(K, 3)``
-    the pinned particles' positions at the end of the step, or ``None``."""
+    the pinned particles' positions at the end of the step, or ``None``; ``level0``: the
+    coarsest substep level to attempt (``StepInfo.next_level`` of the step before)."""
     if not cloth.aero and cloth.wind is not None:  # the step never reads them
         cloth = dataclasses.replace(cloth, wind=None, drag=None, lift=None)
     if isinstance(integrator, ExplicitEuler):
@@ -63,7 +65,8 @@ def _step(cloth, layout, state, dt, integrator, prev=None, guess=None, history=N
         start, tight = history.start, history.jerk
         if before is not None:  # BDF2's problem is not built on (x^n, v^n, h)
             start = lambda p: history.start_at(p, state.v)  # noqa: E731
-    return implicit(cloth, state, dt, integrator, prev, start, tight, layout, before, pin_targets(cloth, state.x, pins))
+    return implicit(cloth, state, dt, integrator, prev, start, tight, layout, before, pin_targets(cloth, state.x, pins),
+                    level0)
 
 def step(cloth: Cloth, state: State, dt, integrator=ImplicitEuler(), guess=None,
          previous: State | None = None, pins=None) -> tuple[State, StepInfo]:
@@ -122,17 +125,23 @@ def _rollout(cloth, layout, state, dt, n_steps, integrator, checkpoint=False, pa
     extrapolate = (isinstance(integrator, ImplicitEuler) and not isinstance(integrator, TRBDF2)
                    and integrator.extrapolate and not cloth.colliders and not cloth.self_contact)
 
+    # adaptive substeps' memory: each step first attempts the level the step before left
+    remember = (isinstance(integrator, ImplicitEuler) and not isinstance(integrator, TRBDF2)
+                and integrator.max_substep_depth > 0)
+
     def f(carry, xs):
         cols, pin, air = xs
-        s, prev, history, before = carry  # history: None unless extrapolating; before: BDF2's
+        s, prev, history, before, level = carry  # history: None unless extrapolating; before: BDF2's
         scene = cloth if air is None else dataclasses.replace(cloth, wind=air)
         if cols is None:
-            s2, info, before = _step(scene, layout, s, dt, integrator, history=history, before=before, pins=pin)
+            s2, info, before = _step(scene, layout, s, dt, integrator, history=history, before=before, pins=pin,
+                                     level0=level)
         else:  # a collider path: no extrapolation (colliders)
             s2, info, before = _step(dataclasses.replace(scene, colliders=cols), layout, s, dt, integrator, prev,
-                                     before=before, pins=pin)
+                                     before=before, pins=pin, level0=level)
         history = None if history is None else history.advance(s.v, info, integrator.extrapolate)
-        return (s2, cols if cols is not None else prev, history, before), (s2, info)
+        level = info.next_level if remember else None
+        return (s2, cols if cols is not None else prev, history, before, level), (s2, info)
 
     if checkpoint:
         f = jax.checkpoint(f, prevent_cse=False)
@@ -143,7 +152,8 @@ def _rollout(cloth, layout, state, dt, n_steps, integrator, checkpoint=False, pa
         before = Before.none(state.x, state.v) if resume is None else resume.before(state.x, state.v, dt)
     elif isinstance(integrator, TRBDF2):  # with resume too: the forces at the state (_implicit.trbdf2)
         before = trbdf2.first(cloth, state.x, state.v, layout)
-    _, (states, infos) = lax.scan(f, (state, prev0, history, before), (path, pins, wind), length=n_steps)
+    level = jnp.int32(0) if remember else None
+    _, (states, infos) = lax.scan(f, (state, prev0, history, before, level), (path, pins, wind), length=n_steps)
     return states, infos
 
 def rollout(cloth: Cloth, state: State, dt, n_steps: int, integrator=ImplicitEuler(),

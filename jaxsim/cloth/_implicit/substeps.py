@@ -153,18 +153,21 @@ def _acceleration(w, p, x, v, h, g, euler: bool):
     return ((p.x0 - x) + (p.h * p.v0 - h * v) + w) / h**2 + (p.h / h)**2 * g
 
 
-def search(cloth, x0, v0, h, integ, rtol, prev, layout, start, tight, before, pins=None):
+def search(cloth, x0, v0, h, integ, rtol, prev, layout, start, tight, before, pins=None, level0=None):
     """Find the substeps (on ``stop_gradient`` inputs): the final :class:`SubstepLoop`.
 
     ``start``: the first attempt's Newton start (``p -> w``, the step's extrapolation), or
     ``None`` (every attempt starts from the lab's ``x^n``); ``tight``: its ``tight_first``;
     ``before``: BDF2's memory at the step's start, ``None`` for backward Euler; ``pins``:
-    ``(N, 3)`` the pinned particles' positions at the step's end, or ``None``.  The first
-    attempt is the whole step (level 0); a step that converges makes no other.
+    ``(N, 3)`` the pinned particles' positions at the step's end, or ``None``; ``level0``:
+    ``()`` int32, the coarsest level the step attempts (``None``: 0, the whole step first;
+    a rollout passes :func:`next_level` of the step before).  The first attempt covers
+    ``h / 2^level0``; a step whose first attempt converges makes no other.
     """
     D = integ.max_substep_depth
     dtype = x0.dtype
     g = cloth.gravity
+    floor = jnp.int32(0) if level0 is None else jnp.clip(jnp.asarray(level0, jnp.int32), 0, D)
 
     def attempt(c: SubstepLoop):
         size = jnp.left_shift(1, D - c.level)
@@ -200,7 +203,7 @@ def search(cloth, x0, v0, h, integ, rtol, prev, layout, start, tight, before, pi
                         s.alpha, s.res, t.converged & (conv | ~accept), s.trace,
                         None if s.overflow is None else t.overflow | s.overflow)
         pos = jnp.where(accept, c.pos + size, c.pos)
-        level = jnp.where(accept, D - _trailing_zeros(jnp.maximum(pos, 1)), c.level + 1)
+        level = jnp.where(accept, jnp.maximum(D - _trailing_zeros(jnp.maximum(pos, 1)), floor), c.level + 1)
         level = jnp.clip(level, 0, D)
         slot = jnp.minimum(c.count, 2**D - 1)
         put = lambda a, new: lax.dynamic_update_index_in_dim(a, keep(new, lax.dynamic_index_in_dim(a, slot, 0, keepdims=False)), slot, 0)  # noqa: E731 (no scatter)
@@ -212,13 +215,30 @@ def search(cloth, x0, v0, h, integ, rtol, prev, layout, start, tight, before, pi
 
     z = jnp.zeros((), dtype)
     trace = NewtonTrace.empty(integ.newton_iters, dtype) if integ.trace else None
-    c0 = SubstepLoop(x=x0, v=v0, pos=jnp.int32(0), level=jnp.int32(0), count=jnp.int32(0), tries=jnp.int32(0),
+    c0 = SubstepLoop(x=x0, v=v0, pos=jnp.int32(0), level=floor, count=jnp.int32(0), tries=jnp.int32(0),
                      accel=jnp.zeros_like(x0), ws=jnp.zeros((2**D,) + x0.shape, dtype), levels=jnp.zeros(2**D, jnp.int32),
                      failed=jnp.array(False),
                      totals=Totals(jnp.int32(0), jnp.int32(0), jnp.int32(0), z, z, z, z, z, jnp.array(True), trace,
                                    jnp.array(False) if cloth.self_contact else None),
                      before=before)
     return lax.while_loop(lambda c: (c.pos < 2**D) & ~c.failed & (c.tries < 2 ** (D + 1)), attempt, c0)
+
+
+#: A rollout's next step starts one level coarser than the coarsest substep of a step that
+#: retried no attempt and took at most ``newton_iters // GROW_SHARE`` Newton iterations a
+#: substep (:func:`next_level`).
+GROW_SHARE = 4
+
+
+def next_level(found: SubstepLoop, integ) -> jax.Array:
+    """``()`` int32 the level a rollout's next step first attempts (``search``'s ``level0``):
+    the coarsest level this step accepted, or one coarser where every attempt was accepted
+    within ``newton_iters // GROW_SHARE`` iterations a substep.  A step taken whole gives 0."""
+    D = integ.max_substep_depth
+    taken = jnp.arange(2**D) < found.count
+    coarsest = jnp.min(jnp.where(taken, found.levels, D))
+    easy = (found.tries == found.count) & (found.totals.newton_iters <= (integ.newton_iters // GROW_SHARE) * found.count)
+    return jnp.clip(coarsest - easy.astype(jnp.int32), 0, D).astype(jnp.int32)
 
 
 def replay(cloth, x0, v0, h, integ, prev, layout, found: SubstepLoop, before=None, pins=None):
