@@ -260,13 +260,13 @@ def host_bisection(cloth, state, dt, depth, max_depth, plain, colliders=None, pi
     end.  ``pins``: ``(p0, p1)``, the pinned particles' positions ``(K, 3)`` at the start
     and end of ``[0, dt]`` (moving in a straight line), or ``None``.
     """
-    s, levels, iters, conv = host_levels(cloth, state, dt, depth, max_depth, plain, colliders, pins)
+    s, levels, iters, conv, _ = host_levels(cloth, state, dt, depth, max_depth, plain, colliders, pins)
     return s, len(levels), iters, conv
 
 
 def host_levels(cloth, state, dt, depth, max_depth, plain, colliders=None, pins=None):
-    """:func:`host_bisection` with the accepted substeps' levels: ``(state, levels,
-    newton_iters, converged)``."""
+    """:func:`host_bisection` with the accepted substeps' levels and the PCG iterations:
+    ``(state, levels, newton_iters, converged, cg_iters)``."""
     scene = cloth if colliders is None else C.replace(cloth, colliders=colliders[1])
     end = None if pins is None else pins[1]
     if colliders is None:
@@ -276,34 +276,43 @@ def host_levels(cloth, state, dt, depth, max_depth, plain, colliders=None, pins=
                               colliders=tuple(jax.tree_util.tree_map(lambda a: a[None], colliders[1])),
                               pins=None if end is None else end[None])
         new, info = C.State(new.x[0], new.v[0]), jax.tree_util.tree_map(lambda a: a[0], info)
-    iters = int(info.newton_iters)
+    iters, cg = int(info.newton_iters), int(info.cg_iters)
     if bool(info.converged) or depth == max_depth:
-        return new, [depth], iters, bool(info.converged)
+        return new, [depth], iters, bool(info.converged), cg
     mid = None if colliders is None else halfway(*colliders)
     pmid = None if pins is None else (np.asarray(pins[0]) + np.asarray(pins[1])) / 2
-    s1, l1, i1, c1 = host_levels(cloth, state, dt / 2, depth + 1, max_depth, plain,
+    s1, l1, i1, c1, g1 = host_levels(cloth, state, dt / 2, depth + 1, max_depth, plain,
                                  None if colliders is None else (colliders[0], mid),
                                  None if pins is None else (pins[0], pmid))
-    s2, l2, i2, c2 = host_levels(cloth, s1, dt / 2, depth + 1, max_depth, plain,
+    s2, l2, i2, c2, g2 = host_levels(cloth, s1, dt / 2, depth + 1, max_depth, plain,
                                  None if colliders is None else (mid, colliders[1]),
                                  None if pins is None else (pmid, pins[1]))
-    return s2, l1 + l2, iters + i1 + i2, c1 and c2
+    return s2, l1 + l2, iters + i1 + i2, c1 and c2, cg + g1 + g2
 
 
-def host_rollout_bisection(cloth, state, dt, n_steps, max_depth, plain):
-    """``rollout``'s adaptive substeps on the host: each step first attempts the level the
-    step before left (the coarsest level it accepted, one coarser after a step whose
-    attempts were all accepted within ``newton_iters // 4`` iterations a substep), in
-    pieces of ``dt / 2^level`` bisected by :func:`host_levels`.  Per step: ``(state,
-    substeps, newton_iters, converged, next_level)``."""
-    level, out, s = 0, [], state
+def host_rollout_bisection(cloth, state, dt, n_steps, max_depth, plain, max_wait=16):
+    """``rollout``'s adaptive substeps on the host (``_implicit.substeps.remember``): each
+    step first attempts the level the step before left, in pieces of ``dt / 2^level``
+    bisected by :func:`host_levels`.  After a step whose attempts were all accepted it tries
+    one level coarser, unless it waits; a coarser level that failed at once, or cost more
+    Newton plus PCG iterations than the step before, sends the next step back and waits
+    ``patience`` steps (doubled each time, at most ``max_wait``).  Per step: ``(state,
+    substeps, newton_iters, converged, level)``, ``level`` the next step's."""
+    level, trying, wait, patience, last_cost = 0, False, 0, 1, 0
+    out, s = [], state
     for _ in range(n_steps):
-        levels, iters, conv = [], 0, True
+        levels, iters, cg, conv = [], 0, 0, True
         for _ in range(2**level):
-            s, lv, it, cv = host_levels(cloth, s, dt / 2**level, level, max_depth, plain)
-            levels, iters, conv = levels + lv, iters + it, conv and cv
-        easy = all(lv == level for lv in levels) and iters <= (plain.newton_iters // 4) * len(levels)
-        level = min(max(min(levels) - int(easy), 0), max_depth)
+            s, lv, it, cv, g = host_levels(cloth, s, dt / 2**level, level, max_depth, plain)
+            levels, iters, cg, conv = levels + lv, iters + it, cg + g, conv and cv
+        cost = iters + cg
+        paid = trying and levels[0] <= level and cost <= last_cost
+        lost = trying and not paid
+        wait = patience if lost else max(wait - 1, 0)
+        patience = min(2 * patience, max_wait) if lost else (1 if paid else patience)
+        grow = all(lv == level for lv in levels) and wait == 0 and min(levels) > 0 and not lost
+        nxt = max(min(levels), level + 1) if lost else min(levels) - int(grow)
+        level, trying, last_cost = min(max(nxt, 0), max_depth), grow, cost
         out.append((s, len(levels), iters, conv, level))
     return out
 

@@ -28,7 +28,7 @@ PLAIN = dataclasses.replace(SUB, max_substep_depth=0)
 
 def test_substeps_equal_the_host_recursion_of_halved_steps():
     """Each step after the first starts at the level the step before left
-    (``StepInfo.next_level``), as the host's rollout of bisections does."""
+    (``StepInfo.memory``), as the host's rollout of bisections does."""
     states, infos = C.rollout(SCENE, C.State.at_rest(SCENE), DT, 6, SUB)
     host = host_rollout_bisection(SCENE, C.State.at_rest(SCENE), DT, 6, SUB.max_substep_depth, PLAIN)
     for t, (s, n, iters, conv, level) in enumerate(host):
@@ -36,10 +36,10 @@ def test_substeps_equal_the_host_recursion_of_halved_steps():
         np.testing.assert_allclose(states.v[t], s.v, rtol=0, atol=1e-10)
         assert int(infos.newton_iters[t]) == iters
         assert bool(infos.converged[t]) == conv
-        assert int(infos.substeps[t]) == n and int(infos.next_level[t]) == level
+        assert int(infos.substeps[t]) == n and int(infos.memory.level[t]) == level
     counts = np.asarray(infos.substeps).tolist()
     assert max(counts) > 2 and min(counts) >= 2  # the scene exercises two levels of halving
-    assert int(infos.next_level[0]) > 0  # and the memory: later steps skip the whole attempt
+    assert int(infos.memory.level[0]) > 0  # and the memory: later steps skip the whole attempt
     assert bool(jnp.all(infos.converged))
 
 

@@ -6,6 +6,7 @@ import jax
 
 from .._dataclass import pytree_dataclass
 from ._implicit.trace import NewtonTrace
+from ._implicit.substeps import Memory  # noqa: F401 (the annotation)
 
 
 @pytree_dataclass
@@ -52,11 +53,12 @@ class StepInfo:
       pair_overflow: with ``Cloth.self_contact``: a motion had more self-contact pairs
         than ``Cloth.self_contact_pairs`` slots (an iteration that met it was not taken,
         so the step is retried in substeps or not converged); ``None`` without self-contact.
-      next_level: with adaptive substeps, ``()`` int32: a ``rollout``'s next step first
-        attempts ``dt / 2^next_level`` (the coarsest substep this step took, or one level
-        coarser after a step whose substeps each converged at once, within a quarter of
-        ``newton_iters``; ``_implicit.substeps.next_level``); 0 after a step taken whole.
-        ``None`` without substeps.
+      memory: with adaptive substeps, the memory a ``rollout``'s next step starts from
+        (``_implicit.substeps.Memory``): ``memory.level``, the level it first attempts
+        (``dt / 2^level``: the coarsest substep this step took, or one coarser after a
+        step whose attempts all converged and no wait is pending; 0 after a step taken
+        whole), ``memory.wait``, the steps before a coarser level is tried again, and
+        ``memory.patience``.  ``None`` without substeps.
     """
 
     newton_iters: jax.Array
@@ -73,4 +75,4 @@ class StepInfo:
     substeps: jax.Array
     trace: NewtonTrace | None = None
     pair_overflow: jax.Array | None = None
-    next_level: jax.Array | None = None
+    memory: "Memory | None" = None

@@ -107,8 +107,9 @@ class ImplicitEuler:
         counts the substeps a step took, and ``converged`` means every one converged.
         Inside the compiled step (a bounded ``lax.while_loop``); a step that converges
         at once costs what it did without.  In ``rollout`` each step first attempts the
-        level the step before left (``StepInfo.next_level``); ``step`` attempts the whole
-        step first.  ``0``: no substeps (a step that does not converge is returned unconverged).
+        level the step before left (``StepInfo.memory``: the coarsest it accepted, one
+        coarser where that pays; ``_implicit.substeps.remember``); ``step`` attempts the
+        whole step first.  ``0``: no substeps (a step that does not converge is returned unconverged).
       solver, preconditioner, cg_tol, cg_forcing, cg_max_iters: the earlier spelling of
         ``linear_solver`` (``solver="dense" | "cg" | "auto"``, ``preconditioner="jacobi" |
         "two_level"``), kept for one release: a ``DeprecationWarning``, then the same

@@ -15,6 +15,7 @@ from ._explicit import explicit
 from ._implicit.bdf2 import Before
 from ._implicit.extrapolate import History
 from ._implicit.step import implicit
+from ._implicit.substeps import Memory
 from ._implicit import trbdf2
 from ._info import StepInfo
 from ._integrators import BDF2, TRBDF2, ExplicitEuler, ImplicitEuler
@@ -42,14 +43,14 @@ def pin_targets(cloth: Cloth, x, pins):
 
 @functools.partial(jax.jit, static_argnames=("integrator",))
 def _step(cloth, layout, state, dt, integrator, prev=None, guess=None, history=None, before=None, pins=None,
-          level0=None):
+          memory=None):
     """``(State, StepInfo, Before | None)``: one step on ``cloth`` with its ``layout``
     (``_layout.layout_of``); an implicit one may start Newton from ``guess`` (end-of-step
     positions, ``(N, 3)``) or from the extrapolation of a :class:`History`; ``before``:
     BDF2's memory (``_implicit.bdf2.Before``), TR-BDF2's (``_implicit.trbdf2.Stage``),
     or ``None``; ``pins``: ``(K, 3)``
-    the pinned particles' positions at the end of the step, or ``None``; ``level0``: the
-    coarsest substep level to attempt (``StepInfo.next_level`` of the step before)."""
+    the pinned particles' positions at the end of the step, or ``None``; ``memory``: the
+    adaptive substeps' memory (``StepInfo.memory`` of the step before), or ``None``."""
     if not cloth.aero and cloth.wind is not None:  # the step never reads them
         cloth = dataclasses.replace(cloth, wind=None, drag=None, lift=None)
     if isinstance(integrator, ExplicitEuler):
@@ -66,7 +67,7 @@ def _step(cloth, layout, state, dt, integrator, prev=None, guess=None, history=N
         if before is not None:  # BDF2's problem is not built on (x^n, v^n, h)
             start = lambda p: history.start_at(p, state.v)  # noqa: E731
     return implicit(cloth, state, dt, integrator, prev, start, tight, layout, before, pin_targets(cloth, state.x, pins),
-                    level0)
+                    memory)
 
 def step(cloth: Cloth, state: State, dt, integrator=ImplicitEuler(), guess=None,
          previous: State | None = None, pins=None) -> tuple[State, StepInfo]:
@@ -131,17 +132,17 @@ def _rollout(cloth, layout, state, dt, n_steps, integrator, checkpoint=False, pa
 
     def f(carry, xs):
         cols, pin, air = xs
-        s, prev, history, before, level = carry  # history: None unless extrapolating; before: BDF2's
+        s, prev, history, before, memory = carry  # history: None unless extrapolating; before: BDF2's
         scene = cloth if air is None else dataclasses.replace(cloth, wind=air)
         if cols is None:
             s2, info, before = _step(scene, layout, s, dt, integrator, history=history, before=before, pins=pin,
-                                     level0=level)
+                                     memory=memory)
         else:  # a collider path: no extrapolation (colliders)
             s2, info, before = _step(dataclasses.replace(scene, colliders=cols), layout, s, dt, integrator, prev,
-                                     before=before, pins=pin, level0=level)
+                                     before=before, pins=pin, memory=memory)
         history = None if history is None else history.advance(s.v, info, integrator.extrapolate)
-        level = info.next_level if remember else None
-        return (s2, cols if cols is not None else prev, history, before, level), (s2, info)
+        memory = info.memory if remember else None
+        return (s2, cols if cols is not None else prev, history, before, memory), (s2, info)
 
     if checkpoint:
         f = jax.checkpoint(f, prevent_cse=False)
@@ -152,8 +153,8 @@ def _rollout(cloth, layout, state, dt, n_steps, integrator, checkpoint=False, pa
         before = Before.none(state.x, state.v) if resume is None else resume.before(state.x, state.v, dt)
     elif isinstance(integrator, TRBDF2):  # with resume too: the forces at the state (_implicit.trbdf2)
         before = trbdf2.first(cloth, state.x, state.v, layout)
-    level = jnp.int32(0) if remember else None
-    _, (states, infos) = lax.scan(f, (state, prev0, history, before, level), (path, pins, wind), length=n_steps)
+    memory = Memory.start() if remember else None
+    _, (states, infos) = lax.scan(f, (state, prev0, history, before, memory), (path, pins, wind), length=n_steps)
     return states, infos
 
 def rollout(cloth: Cloth, state: State, dt, n_steps: int, integrator=ImplicitEuler(),

@@ -20,7 +20,7 @@ from .newton import newton
 
 
 def implicit(cloth: Cloth, state: State, dt, integ: ImplicitEuler, prev=None, start=None, tight=False,
-             layout: Layout | None = None, before: bdf2.Before | None = None, pins=None, level0=None):
+             layout: Layout | None = None, before: bdf2.Before | None = None, pins=None, memory=None):
     """``(State, StepInfo, Before | None)`` after one step of ``dt`` from ``state``.
 
     ``prev``: the colliders at the start of the step when they move; ``start``: Newton's
@@ -29,13 +29,13 @@ def implicit(cloth: Cloth, state: State, dt, integ: ImplicitEuler, prev=None, st
     stage's (``_implicit.trbdf2``), ``None`` for backward Euler, and the memory for the
     next step is returned (``None`` likewise);
     ``pins``: ``(N, 3)`` the pinned particles' positions at the end of the step (other
-    rows unused), or ``None``: they stay; ``level0``: ``()`` int32, with adaptive substeps
-    the coarsest level the step attempts (``_implicit.substeps.search``; ``None``: the whole
-    step first), and ``StepInfo.next_level`` is the next step's.
+    rows unused), or ``None``: they stay; ``memory``: with adaptive substeps, a rollout's
+    ``_implicit.substeps.Memory`` (``None``: the whole step first), and ``StepInfo.memory``
+    is the next step's.
     """
     if not integ.max_substep_depth:
         return _whole(cloth, state, dt, integ, prev, start, tight, layout, before, pins)
-    return _substepped(cloth, state, dt, integ, prev, start, tight, layout, before, pins, level0)
+    return _substepped(cloth, state, dt, integ, prev, start, tight, layout, before, pins, memory)
 
 
 def _whole(cloth: Cloth, state: State, dt, integ: ImplicitEuler, prev, start, tight, layout, before, pins):
@@ -65,7 +65,7 @@ def _whole(cloth: Cloth, state: State, dt, integ: ImplicitEuler, prev, start, ti
 
 
 def _substepped(cloth: Cloth, state: State, dt, integ: ImplicitEuler, prev, start, tight, layout, before, pins,
-                level0=None):
+                memory=None):
     """:func:`implicit` with adaptive substeps (``_implicit.substeps``): the whole step is
     the search's first attempt."""
     x0, v0 = state.x, state.v
@@ -77,7 +77,7 @@ def _substepped(cloth: Cloth, state: State, dt, integ: ImplicitEuler, prev, star
         start_fn = start
         start = lambda p: lax.stop_gradient(start_fn(p))  # noqa: E731
     found = sb.search(scene, const(x0), const(v0), const(dt), integ, integ.resolved_rtol(x0.dtype),
-                      const(prev), layout, start, tight, const(before), const(pins), level0)
+                      const(prev), layout, start, tight, const(before), const(pins), memory)
     x, v, last = sb.replay(cloth, x0, v0, dt, integ, prev, layout, found, before, pins)
     ok = valid & ~found.failed & bounded(cloth, x, v)
     t = found.totals
@@ -85,7 +85,7 @@ def _substepped(cloth: Cloth, state: State, dt, integ: ImplicitEuler, prev, star
                     step_size=t.step_size, backtracks=t.backtracks, residual=t.residual,
                     converged=ok & t.converged, stable=ok, valid=valid, cond_bound=t.cond_bound,
                     substeps=jnp.where(ok, found.count, 0), trace=t.trace, pair_overflow=t.overflow,
-                    next_level=sb.next_level(found, integ))
+                    memory=sb.remember(found, memory, integ))
     if before is not None:
         last = jax.tree_util.tree_map(lambda a, b: jnp.where(ok, a, b), last, before)
     return State(jnp.where(ok, x, x0), jnp.where(ok, v, v0)), info, last

@@ -153,21 +153,21 @@ def _acceleration(w, p, x, v, h, g, euler: bool):
     return ((p.x0 - x) + (p.h * p.v0 - h * v) + w) / h**2 + (p.h / h)**2 * g
 
 
-def search(cloth, x0, v0, h, integ, rtol, prev, layout, start, tight, before, pins=None, level0=None):
+def search(cloth, x0, v0, h, integ, rtol, prev, layout, start, tight, before, pins=None, memory=None):
     """Find the substeps (on ``stop_gradient`` inputs): the final :class:`SubstepLoop`.
 
     ``start``: the first attempt's Newton start (``p -> w``, the step's extrapolation), or
     ``None`` (every attempt starts from the lab's ``x^n``); ``tight``: its ``tight_first``;
     ``before``: BDF2's memory at the step's start, ``None`` for backward Euler; ``pins``:
-    ``(N, 3)`` the pinned particles' positions at the step's end, or ``None``; ``level0``:
-    ``()`` int32, the coarsest level the step attempts (``None``: 0, the whole step first;
-    a rollout passes :func:`next_level` of the step before).  The first attempt covers
-    ``h / 2^level0``; a step whose first attempt converges makes no other.
+    ``(N, 3)`` the pinned particles' positions at the step's end, or ``None``; ``memory``:
+    a rollout's :class:`Memory` (:func:`remember` of the step before; ``None``: the whole
+    step first), whose ``level`` is the coarsest the step attempts.  The first attempt
+    covers ``h / 2^level``; a step whose first attempt converges makes no other.
     """
     D = integ.max_substep_depth
     dtype = x0.dtype
     g = cloth.gravity
-    floor = jnp.int32(0) if level0 is None else jnp.clip(jnp.asarray(level0, jnp.int32), 0, D)
+    floor = jnp.int32(0) if memory is None else jnp.clip(memory.level, 0, D)
 
     def attempt(c: SubstepLoop):
         size = jnp.left_shift(1, D - c.level)
@@ -224,21 +224,59 @@ def search(cloth, x0, v0, h, integ, rtol, prev, layout, start, tight, before, pi
     return lax.while_loop(lambda c: (c.pos < 2**D) & ~c.failed & (c.tries < 2 ** (D + 1)), attempt, c0)
 
 
-#: A rollout's next step starts one level coarser than the coarsest substep of a step that
-#: retried no attempt and took at most ``newton_iters // GROW_SHARE`` Newton iterations a
-#: substep (:func:`next_level`).
-GROW_SHARE = 4
+#: A coarser level tried that failed, or that cost more than the finer one before it, is not
+#: tried again for ``patience`` steps: 1, then twice as many after each further such try, at
+#: most ``MAX_WAIT``; a coarser level that pays resets it to 1.
+MAX_WAIT = 16
 
 
-def next_level(found: SubstepLoop, integ) -> jax.Array:
-    """``()`` int32 the level a rollout's next step first attempts (``search``'s ``level0``):
-    the coarsest level this step accepted, or one coarser where every attempt was accepted
-    within ``newton_iters // GROW_SHARE`` iterations a substep.  A step taken whole gives 0."""
+@pytree_dataclass
+class Memory:
+    """Adaptive substeps' memory between a rollout's steps (``StepInfo.memory``).
+
+    Attributes:
+      level: ``()`` int32 the level the next step first attempts (``h / 2^level``).
+      trying: ``()`` bool, that level is one coarser than the step before accepted.
+      wait: ``()`` int32 steps to take before a coarser level is tried again.
+      patience: ``()`` int32 the wait after the next coarser level that does not pay.
+      cost: ``()`` int32 the step's Newton plus PCG iterations (every attempt's).
+    """
+
+    level: jax.Array
+    trying: jax.Array
+    wait: jax.Array
+    patience: jax.Array
+    cost: jax.Array
+
+    @staticmethod
+    def start() -> "Memory":
+        """A rollout's first step: the whole step first."""
+        return Memory(jnp.int32(0), jnp.array(False), jnp.int32(0), jnp.int32(1), jnp.int32(0))
+
+
+def remember(found: SubstepLoop, mem: Memory | None, integ) -> Memory:
+    """The memory after the step ``found`` that began from ``mem`` (``None``: a step alone).
+
+    The next step first attempts the coarsest level this step accepted, or one coarser
+    where every attempt was accepted and no wait is pending.  A coarser level tried pays
+    when its first attempt converged and the step cost no more Newton and PCG iterations
+    than the step before at the finer level; one that did not pay sends the next step back
+    to the finer level, waits ``patience`` steps and doubles it (on a drape, a frame of two
+    half steps can cost more than four quarters even where both converge)."""
     D = integ.max_substep_depth
+    mem = Memory.start() if mem is None else mem
     taken = jnp.arange(2**D) < found.count
     coarsest = jnp.min(jnp.where(taken, found.levels, D))
-    easy = (found.tries == found.count) & (found.totals.newton_iters <= (integ.newton_iters // GROW_SHARE) * found.count)
-    return jnp.clip(coarsest - easy.astype(jnp.int32), 0, D).astype(jnp.int32)
+    cost = found.totals.newton_iters + found.totals.cg_iters
+    first_ok = found.levels[0] <= jnp.clip(mem.level, 0, D)
+    paid = mem.trying & first_ok & (cost <= mem.cost)
+    lost = mem.trying & ~paid
+    wait = jnp.where(lost, mem.patience, jnp.maximum(mem.wait - 1, 0))
+    patience = jnp.where(lost, jnp.minimum(2 * mem.patience, MAX_WAIT), jnp.where(paid, 1, mem.patience))
+    grow = (found.tries == found.count) & (wait == 0) & (coarsest > 0) & ~lost
+    level = jnp.where(lost, jnp.maximum(coarsest, mem.level + 1), coarsest - grow.astype(jnp.int32))
+    return Memory(jnp.clip(level, 0, D).astype(jnp.int32), grow, wait.astype(jnp.int32),
+                  patience.astype(jnp.int32), cost.astype(jnp.int32))
 
 
 def replay(cloth, x0, v0, h, integ, prev, layout, found: SubstepLoop, before=None, pins=None):
