@@ -12,6 +12,7 @@ import numpy as np
 
 from jaxsim import cloth as C
 from jaxsim import anim, ik
+from jaxsim.cloth._implicit.substeps import LAST_NEWTON
 from jaxsim._report._humanoid import random_poses
 from jaxsim.cloth import _step
 from jaxsim.cloth._layout import layout_of
@@ -269,6 +270,8 @@ def host_levels(cloth, state, dt, depth, max_depth, plain, colliders=None, pins=
     ``(state, levels, newton_iters, converged, cg_iters)``."""
     scene = cloth if colliders is None else C.replace(cloth, colliders=colliders[1])
     end = None if pins is None else pins[1]
+    if depth == max_depth and max_depth > 0:  # the deepest level's budget (substeps.LAST_NEWTON)
+        plain = dataclasses.replace(plain, newton_iters=LAST_NEWTON * plain.newton_iters)
     if colliders is None:
         new, info = C.step(scene, state, dt, plain, pins=end)
     else:

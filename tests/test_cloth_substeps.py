@@ -75,10 +75,12 @@ def test_a_step_that_converges_takes_one_substep_and_equals_the_plain_step(extra
 
 
 def test_at_the_depth_cap_an_unconverged_substep_is_kept_and_reported():
-    integ = dataclasses.replace(SUB, newton_iters=2, max_substep_depth=2)
+    """(The deepest level runs ``LAST_NEWTON * newton_iters`` iterations, here 2; Cholesky,
+    since PCG's forcing term depends on ``newton_iters``.)"""
+    integ = dataclasses.replace(SUB, newton_iters=1, max_substep_depth=2, linear_solver=C.Cholesky())
     s, info = C.step(SCENE, C.State.at_rest(SCENE), DT, integ)
     ref, n, iters, conv = host_bisection(SCENE, C.State.at_rest(SCENE), DT, 0, 2,
-                                         dataclasses.replace(PLAIN, newton_iters=2))
+                                         dataclasses.replace(integ, max_substep_depth=0))
     assert int(info.substeps) == n == 4 and not conv
     assert not bool(info.converged) and bool(info.stable) and int(info.newton_iters) == iters
     np.testing.assert_allclose(s.x, ref.x, rtol=0, atol=1e-12)

@@ -194,7 +194,7 @@ def _start_or_labs(sv: NewtonSetup, wg, w0):
     return jnp.where(better, wg, w0), e, better
 
 
-def initial_state(sv: NewtonSetup, rtol, start=None, tight_first=False) -> NewtonState:
+def initial_state(sv: NewtonSetup, rtol, start=None, tight_first=False, size=None) -> NewtonState:
     """The loop's first carry: the lab's start ``w = -y`` (or the push-out off a moving
     collider), or ``start`` where ``g`` is lower there (NaN never wins; ``g`` at the lab's
     start costs no pass over the springs)."""
@@ -219,11 +219,12 @@ def initial_state(sv: NewtonSetup, rtol, start=None, tight_first=False) -> Newto
                        phase=jnp.int32(0), tight=tight,
                        done=((rel0 <= rtol) if integ.tol is None else jnp.array(False)) | over0, fail=over0,
                        anchor=at0 if integ.project_psd == "auto" else None,
-                       trace=NewtonTrace.empty(integ.newton_iters, sv.dtype) if integ.trace else None,
+                       trace=NewtonTrace.empty(size or integ.newton_iters, sv.dtype) if integ.trace else None,
                        overflow=None if e0.pairs is None else e0.pairs.overflow)
 
 
-def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol, start=None, tight_first=False) -> NewtonState:
+def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol, start=None, tight_first=False, limit=None,
+           size=None) -> NewtonState:
     """Minimise ``g(., p)`` from ``w = -y`` (the displacement 0, the lab's start), or from
     ``start`` (``(N, 3)``, a deviation ``w``; pinned rows ignored) where ``g`` is lower there.
     ``tight_first``: ``()`` bool, a start one iteration from the solution: the first PCG
@@ -234,12 +235,14 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol, start=None, tight_firs
     ``integ.tol=None``, taking no iteration), and with a ``tol`` once the lab's step test
     ``max|alpha dx| / h < tol`` holds too; when the gradient is at rounding level, when
     the step is at the rounding level of ``w`` (no further progress is possible), or
-    after ``newton_iters`` iterations.  Runs on ``stop_gradient`` inputs: derivatives come from
+    after ``newton_iters`` iterations (``limit``: ``()`` int32, a traced cap in its place, at
+    most ``size``, the trace's length).  Runs on ``stop_gradient`` inputs: derivatives come from
     the implicit function theorem instead (``_implicit.implicit_diff``).
     """
     sv = NewtonSetup(p, integ)
-    s0 = initial_state(sv, rtol, start, tight_first)
-    s = lax.while_loop(lambda s: (s.it < integ.newton_iters) & ~s.done, lambda s: iteration(sv, s, rtol), s0)
+    s0 = initial_state(sv, rtol, start, tight_first, size)
+    cap = integ.newton_iters if limit is None else limit
+    s = lax.while_loop(lambda s: (s.it < cap) & ~s.done, lambda s: iteration(sv, s, rtol), s0)
     if s.anchor is None:
         return s
     # a phase cut off by the cap: where it began is the better iterate
