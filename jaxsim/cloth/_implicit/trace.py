@@ -14,7 +14,8 @@ HESSIANS = ("exact", "shifted", "clamped", "stationary")
 
 @pytree_dataclass
 class NewtonTrace:
-    """One entry per Newton iteration, each array ``(newton_iters,)``; entries after the
+    """One entry per Newton iteration, each array ``(newton_iters,)`` (``(2 newton_iters,)``
+    with adaptive substeps, whose deepest level may run that many); entries after the
     last iteration taken are NaN (floats) or -1 (integers).
 
     Attributes:
