@@ -293,20 +293,27 @@ def host_levels(cloth, state, dt, depth, max_depth, plain, colliders=None, pins=
     return s2, l1 + l2, iters + i1 + i2, c1 and c2, cg + g1 + g2
 
 
-def host_rollout_bisection(cloth, state, dt, n_steps, max_depth, plain, max_wait=16):
+def host_rollout_bisection(cloth, state, dt, n_steps, max_depth, plain, max_wait=16, pins=None):
     """``rollout``'s adaptive substeps on the host (``_implicit.substeps.remember``): each
     step first attempts the level the step before left, in pieces of ``dt / 2^level``
     bisected by :func:`host_levels`.  After a step whose attempts were all accepted it tries
     one level coarser, unless it waits; a coarser level that failed at once, or cost more
     Newton plus PCG iterations than the step before, sends the next step back and waits
-    ``patience`` steps (doubled each time, at most ``max_wait``).  Per step: ``(state,
-    substeps, newton_iters, converged, level)``, ``level`` the next step's."""
+    ``patience`` steps (doubled each time, at most ``max_wait``).  ``pins``: ``(p0, path)``,
+    the pinned particles' positions ``(K, 3)`` at the start and ``(n_steps, K, 3)`` at each
+    step's end (straight lines within a step), or ``None``.  Per step: ``(state, substeps,
+    newton_iters, converged, level)``, ``level`` the next step's."""
     level, trying, wait, patience, last_cost = 0, False, 0, 1, 0
     out, s = [], state
-    for _ in range(n_steps):
+    for t in range(n_steps):
         levels, iters, cg, conv = [], 0, 0, True
-        for _ in range(2**level):
-            s, lv, it, cv, g = host_levels(cloth, s, dt / 2**level, level, max_depth, plain)
+        for k in range(2**level):
+            piece = None
+            if pins is not None:
+                a = np.asarray(pins[0]) if t == 0 else np.asarray(pins[1][t - 1])
+                b = np.asarray(pins[1][t])
+                piece = (a + k / 2**level * (b - a), a + (k + 1) / 2**level * (b - a))
+            s, lv, it, cv, g = host_levels(cloth, s, dt / 2**level, level, max_depth, plain, pins=piece)
             levels, iters, cg, conv = levels + lv, iters + it, cg + g, conv and cv
         cost = iters + cg
         paid = trying and levels[0] <= level and cost <= last_cost

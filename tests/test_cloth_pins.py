@@ -13,7 +13,7 @@ import pytest
 from jax.test_util import check_grads
 
 from jaxsim import cloth as C
-from _helpers import host_bisection
+from _helpers import host_rollout_bisection
 
 jax.config.update("jax_enable_x64", True)
 
@@ -73,13 +73,12 @@ def test_substeps_with_moving_pins_equal_halved_steps():
     p0 = np.asarray(stiff.rest)[ids]
     path = p0[None] + np.array([0.0, 0.0, 1.5])[None, None] * (np.arange(1, 4) * DT)[:, None, None]
     states, infos = C.rollout(stiff, C.State.at_rest(stiff), DT, 3, sub, pins=path)
-    s, before, counts = C.State.at_rest(stiff), p0, []
-    for t in range(3):
-        s, n, iters, conv = host_bisection(stiff, s, DT, 0, sub.max_substep_depth, plain, pins=(before, path[t]))
-        before = path[t]
+    host = host_rollout_bisection(stiff, C.State.at_rest(stiff), DT, 3, sub.max_substep_depth, plain, pins=(p0, path))
+    counts = []
+    for t, (s, n, iters, conv, level) in enumerate(host):  # the rollout's substep memory too
         counts.append(n)
         np.testing.assert_allclose(states.x[t], s.x, rtol=0, atol=1e-11)
-        assert int(infos.newton_iters[t]) == iters
+        assert int(infos.newton_iters[t]) == iters and int(infos.memory.level[t]) == level
     assert np.asarray(infos.substeps).tolist() == counts and max(counts) > 1
     assert np.abs(np.asarray(states.x)[:, ids] - path).max() <= 1e-12
 
