@@ -66,8 +66,8 @@ def _whole(cloth: Cloth, state: State, dt, integ: ImplicitEuler, prev, start, ti
 
 def _substepped(cloth: Cloth, state: State, dt, integ: ImplicitEuler, prev, start, tight, layout, before, pins,
                 memory=None):
-    """:func:`implicit` with adaptive substeps (``_implicit.substeps``): the whole step is
-    the search's first attempt."""
+    """:func:`implicit` with adaptive substeps (``_implicit.substeps``): the search's first
+    attempt is the whole step, or ``h / 2^memory.level`` in a rollout."""
     x0, v0 = state.x, state.v
     valid = valid_inputs(cloth, dt)
     const = lambda a: jax.tree_util.tree_map(lax.stop_gradient, a)  # noqa: E731
