@@ -80,7 +80,11 @@ def line_search(sv: NewtonSetup, w, gw, gvec, dx, full=False) -> Trial:
     slack = 8 * sv.eps * jnp.abs(gw)  # g changes by less than its last bits at convergence
 
     def accepted(a, k, at):
-        armijo = at.g <= gw + GAMMA * a * slope + slack
+        # the rounding slack only where the decrease the slope predicts is within it: a
+        # trial predicted to gain more must really lower g (float32 friction otherwise
+        # takes overshoots that rise by less than the slack, and Newton bounces)
+        resolved = -a * slope > slack
+        armijo = at.g <= gw + GAMMA * a * slope + jnp.where(resolved, 0, slack)
         return (armijo & jnp.isfinite(at.g)) | full | (k >= integ.max_backtracks)
 
     a0, seg = first_step(sv, w, dx)
