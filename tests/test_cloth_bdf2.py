@@ -137,7 +137,11 @@ def test_a_resume_after_substeps_starts_with_backward_euler():
     chunk = jax.tree_util.tree_map(lambda t: t[: k + 1], (states, infos))
     nxt = C.State(states.x[k], states.v[k])
     b, ib = C.rollout(stiff, nxt, 1 / 30, 8, integ, resume=chunk)
-    first, info = C.step(stiff, nxt, 1 / 30, integ)  # no previous=: backward Euler
+    # no previous state (a backward-Euler first substep), from the substeps' memory that
+    # ``resume`` carries on (``StepInfo.memory``)
+    memory = jax.tree_util.tree_map(lambda m: m[k], infos.memory)
+    first, info, _ = _step._step(stiff, layout_of(stiff.springs, stiff.rest), nxt, jnp.float64(1 / 30), integ,
+                                 before=Before.none(nxt.x, nxt.v), memory=memory)
     assert bool(ib.converged[0]) and bool(info.converged) and int(ib.substeps[0]) == int(info.substeps)
     np.testing.assert_allclose(b.x[0], first.x, atol=1e-9)
 

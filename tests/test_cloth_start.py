@@ -285,6 +285,9 @@ def test_bad_resumes_raise(chunks):
         C.rollout(c, s, DT, 2, AUTO, resume=(a, jax.tree_util.tree_map(lambda x: x[:2], i_a)))
     with pytest.raises(ValueError, match="finite"):
         C.rollout(c, s, DT, 2, AUTO, resume=(C.State(a.x, a.v.at[0, 0, 0].set(jnp.nan)), i_a))
+    short = dataclasses.replace(i_a, memory=jax.tree_util.tree_map(lambda m: m[:2], i_a.memory))
+    with pytest.raises(ValueError, match="memory"):
+        C.rollout(c, s, DT, 2, AUTO, resume=(a, short))
 
 
 @pytest.mark.slow

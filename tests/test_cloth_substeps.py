@@ -54,6 +54,24 @@ def test_a_step_alone_attempts_the_whole_step_first():
     assert int(info.substeps) == n and int(info.newton_iters) == iters
 
 
+def test_resumed_chunks_take_the_substeps_of_one_rollout():
+    """``rollout(resume=)`` carries ``StepInfo.memory``: 3 + 3 steps take the substeps,
+    Newton iterations and states of one 6-step rollout; a chunk started without it
+    attempts the whole step first, which costs more."""
+    s0 = C.State.at_rest(SCENE)
+    whole, iw = C.rollout(SCENE, s0, DT, 6, SUB)
+    a, ia = C.rollout(SCENE, s0, DT, 3, SUB)
+    nxt = C.State(a.x[-1], a.v[-1])
+    b, ib = C.rollout(SCENE, nxt, DT, 3, SUB, resume=(a, ia))
+    for got, want in ((ia, slice(0, 3)), (ib, slice(3, 6))):
+        assert np.array_equal(got.substeps, iw.substeps[want])
+        assert np.array_equal(got.newton_iters, iw.newton_iters[want])
+        assert np.array_equal(got.memory.level, iw.memory.level[want])
+    np.testing.assert_allclose(b.x, whole.x[3:], rtol=0, atol=1e-12)
+    _, bare = C.rollout(SCENE, nxt, DT, 3, SUB)
+    assert int(bare.newton_iters[0]) > int(ib.newton_iters[0])
+
+
 def test_without_substeps_the_same_scene_does_not_converge():
     _, infos = C.rollout(SCENE, C.State.at_rest(SCENE), DT, 6, PLAIN)
     assert not bool(jnp.any(infos.converged)) and bool(jnp.all(infos.stable))

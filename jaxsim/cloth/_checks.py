@@ -195,5 +195,10 @@ def check_resume(cloth: Cloth, resume, batch: int | None = None, bdf2: bool = Fa
             raise ValueError(f"resume's infos.substeps must have a leading {lead + (T,)} axis like its states")
         x_prev = x[..., -2, :, :].astype(cloth.dtype)
         whole = jnp.asarray(infos.substeps[..., -1]) == 1
+    memory = None
+    if infos.memory is not None:
+        if any(jnp.shape(m) != lead + (T,) for m in jax.tree_util.tree_leaves(infos.memory)):
+            raise ValueError(f"resume's infos.memory must have a leading {lead + (T,)} axis like its states")
+        memory = jax.tree_util.tree_map(lambda m: jnp.asarray(m[..., -1]), infos.memory)
     return Resume(v[..., -3:, :, :].astype(cloth.dtype), jnp.asarray(infos.converged[..., -1]),
-                  jnp.asarray(infos.newton_iters[..., -1]), x_prev, whole)
+                  jnp.asarray(infos.newton_iters[..., -1]), x_prev, whole, memory)

@@ -153,7 +153,9 @@ def _rollout(cloth, layout, state, dt, n_steps, integrator, checkpoint=False, pa
         before = Before.none(state.x, state.v) if resume is None else resume.before(state.x, state.v, dt)
     elif isinstance(integrator, TRBDF2):  # with resume too: the forces at the state (_implicit.trbdf2)
         before = trbdf2.first(cloth, state.x, state.v, layout)
-    memory = Memory.start() if remember else None
+    memory = None
+    if remember:
+        memory = Memory.start() if resume is None else resume.substep_memory(integrator.max_substep_depth)
     _, (states, infos) = lax.scan(f, (state, prev0, history, before, memory), (path, pins, wind), length=n_steps)
     return states, infos
 
@@ -184,7 +186,9 @@ def rollout(cloth: Cloth, state: State, dt, n_steps: int, integrator=ImplicitEul
         (``State(states.x[-1], states.v[-1])``; the start is a guess, taken only where it
         lowers the incremental potential): the extrapolated start goes on from its
         velocities and from its last step's diagnostics (``"auto"``), so rollouts run in
-        chunks start each step exactly as one long rollout would.  Without it the
+        chunks start each step exactly as one long rollout would; the adaptive substeps'
+        memory (``StepInfo.memory``) goes on too, so each chunk's first step attempts the
+        level a long rollout's would.  Without it the
         velocities before come from the forces at ``state``, which differ from the
         previous rollout's only through damping's frozen directions (and ``"auto"``
         takes the motion as smooth).  No effect where ``rollout`` does not extrapolate

@@ -7,6 +7,7 @@ import jax.numpy as jnp
 
 from ..._dataclass import pytree_dataclass
 from .bdf2 import Before
+from .substeps import Memory
 
 
 @pytree_dataclass
@@ -22,6 +23,8 @@ class Resume:
         ``None`` (another integrator, or a one-step rollout).
       whole: ``()`` bool, BDF2 only: its last step was taken, in one substep (``None``
         where ``x_prev`` is).
+      memory: the adaptive substeps' memory after its last step (``StepInfo.memory``), or
+        ``None`` (it had none).
     """
 
     v: jax.Array
@@ -29,6 +32,16 @@ class Resume:
     newton_iters: jax.Array
     x_prev: jax.Array | None = None
     whole: jax.Array | None = None
+    memory: Memory | None = None
+
+    def substep_memory(self, depth: int) -> Memory:
+        """The memory the resumed rollout's first step starts from, with adaptive substeps
+        to ``depth`` levels: the previous rollout's (its level capped at ``depth``), or a
+        first step's."""
+        if self.memory is None:
+            return Memory.start()
+        return Memory(jnp.minimum(self.memory.level, depth), self.memory.trying, self.memory.wait,
+                      self.memory.patience, self.memory.cost)
 
     def before(self, x, v, dt) -> Before:
         """BDF2's memory for the resumed rollout's first step from ``(x, v)`` (``(N, 3)``),
