@@ -101,14 +101,20 @@ def substeps_table():
 
 
 def self_contact_table():
-    out = ["| layers | dtype | self-contact | converged | substeps (most) | Newton/step | ms/step | cost | compile (s) | "
-           "frames intersecting | least gap (mm) |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+    out = ["| layers | solver | dtype | self-contact | converged | substeps (most) | Newton/step | ms/step | cost | "
+           "compile (s) | frames intersecting | least gap (mm) |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for name in ("cloth_self_contact_quick", "cloth_self_contact"):
         if not os.path.exists(os.path.join(RESULTS, name + ".json")):
             continue
         for r in load(name)["rows"]:
+            head = f"| 2 x {r['n']}x{r['n']}, {r['steps']} steps "
+            if r.get("solver") == "newton VBD":
+                stable = "" if r["stable"] else " (unstable)"
+                out.append(f"{head}| newton VBD{stable} | {r['dtype']} | on | | {r['substeps_per_frame']} a frame | | "
+                           f"{r['ms_per_step']:.0f} | | {r['compile_s']:.1f} | {r['frames_intersecting']} | |")
+                continue
             cost = f"{r['cost_ratio']:.1f}x" if "cost_ratio" in r else "1"
-            out.append(f"| 2 x {r['n']}x{r['n']}, {r['steps']} steps | {r['dtype']} | {'on' if r['self_contact'] else 'off'} | "
+            out.append(f"{head}| jaxsim | {r['dtype']} | {'on' if r['self_contact'] else 'off'} | "
                        f"{100 * r['converged_share']:.1f}% | {r['substeps_max']} | {r['newton_per_step']:.1f} | "
                        f"{r['ms_per_step']:.0f} | {cost} | {r['compile_s']:.1f} | {r['frames_intersecting']} | "
                        f"{1e3 * r['least_layer_gap_m']:.2f} |")

@@ -9,7 +9,15 @@ share of steps converged, substeps, Newton iterations, the frames in which some 
 passes through a triangle (``jaxsim.cloth._self.intersect``), and the least distance
 between the layers.
 
-Run: ``python benchmarks/cloth_self_contact.py [--quick] [--n 32] [--steps 60] [--dtypes float32]``;
+Side by side, in the same run: Newton's VBD (the ``newton`` package, a bench extra; Warp on
+the CPU) on the same two layers with its self-contact on (``particle_enable_self_contact``,
+interaction distance our ``contact_gap``, as much again of detection slack), the same
+sphere and floor with friction 0.4, ``iterations=10``, at 1, 2, 5 and 10 substeps a frame
+until a run is stable (finite, every particle centre outside the sphere and above the
+floor) and leaves no intersecting frame: ms per step (per frame), and the frames in which
+some edge passes through a triangle, by the same checker on VBD's own triangles.
+
+Run: ``python benchmarks/cloth_self_contact.py [--quick] [--n 32] [--steps 60] [--dtypes float32] [--no-vbd]``;
 writes ``benchmarks/results/cloth_self_contact.json`` (``--quick``: 16x16 layers over 30 steps,
 ``cloth_self_contact_quick.json``).
 """
@@ -56,6 +64,69 @@ def layer_gap(x, n):
     return best
 
 
+def _edges(faces):
+    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    return np.unique(np.sort(e, axis=1), axis=0)
+
+
+def vbd(n, steps, dhat, substeps):
+    """Newton's VBD on the two layers (z up), with its self-contact on."""
+    import newton
+    import warp as wp
+
+    wp.config.quiet = True
+    span = 1.0
+    b = newton.ModelBuilder()
+    cfg = b.default_shape_cfg.copy()
+    cfg.mu = 0.4
+    b.add_ground_plane(cfg=cfg)
+    b.add_shape_sphere(-1, xform=wp.transform(wp.vec3(0.0, 0.0, 0.5), wp.quat_identity()), radius=0.35, cfg=cfg)
+    for dx, height in ((0.0, 0.98), (0.01, 0.95)):
+        b.add_cloth_grid(pos=wp.vec3(-span / 2 + dx, -span / 2 + dx, height), rot=wp.quat_identity(),
+                         vel=wp.vec3(0.0, 0.0, 0.0), dim_x=n - 1, dim_y=n - 1, cell_x=span / (n - 1),
+                         cell_y=span / (n - 1), mass=0.25 / n**2, tri_ke=1e3, tri_ka=1e3, tri_kd=1e-2,
+                         edge_ke=1e-2, particle_radius=0.005)
+    b.color(include_bending=True)
+    model = b.finalize(device="cpu")
+    model.soft_contact_mu = 0.4
+    solver = newton.solvers.SolverVBD(model=model, iterations=10, particle_enable_self_contact=True,
+                                      particle_self_contact_margin=dhat, particle_self_contact_gap=dhat)
+    s0, s1, ctrl = model.state(), model.state(), model.control()
+    pipe = newton.CollisionPipeline(model)
+    contacts = pipe.contacts()
+    dt = 1 / 60 / substeps
+
+    def frame():
+        nonlocal s0, s1
+        for _ in range(substeps):
+            s0.clear_forces()
+            pipe.collide(s0, contacts)
+            solver.step(s0, s1, ctrl, contacts, dt)
+            s0, s1 = s1, s0
+        wp.synchronize()
+
+    t0 = time.perf_counter()
+    frame()  # Warp builds its kernels on the first use
+    build = time.perf_counter() - t0
+    run, frames = 0.0, [s0.particle_q.numpy().copy()]
+    for _ in range(steps - 1):
+        t0 = time.perf_counter()
+        frame()
+        run += time.perf_counter() - t0
+        frames.append(s0.particle_q.numpy().copy())
+    X = np.stack(frames).astype(np.float64)
+    faces = model.tri_indices.numpy()
+    edges = _edges(faces)
+    finite = bool(np.all(np.isfinite(X)))
+    bad = [t for t in range(steps) if finite and crossings(X[t], faces, edges).shape[0]]
+    gap = min(float(np.linalg.norm(X - np.array([0.0, 0.0, 0.5]), axis=-1).min()) - 0.35, float(X[..., 2].min()))
+    return {"n": n, "particles": int(model.particle_count), "solver": "newton VBD", "dtype": "float32",
+            "self_contact": True, "steps": steps, "substeps_per_frame": substeps,
+            "ms_per_step": 1e3 * run / (steps - 1), "compile_s": build,
+            "stable": finite and gap >= 0.0, "closest_collider_m": gap,
+            "frames_intersecting": len(bad) if finite else None, "first_intersecting_frame": bad[0] if bad else None}
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--quick", action="store_true", help="16x16 layers, 30 steps")
@@ -63,6 +134,7 @@ def main():
     ap.add_argument("--steps", type=int, default=60)
     ap.add_argument("--rounds", type=int, default=2)
     ap.add_argument("--dtypes", default="float64,float32")
+    ap.add_argument("--no-vbd", action="store_true", help="leave Newton's VBD out")
     a = ap.parse_args()
     n, steps = (16, 30) if a.quick else (a.n, a.steps)
     rows = []
@@ -90,7 +162,8 @@ def main():
             faces, edges = ref.contact_faces, ref.contact_edges
             bad = [t for t in range(steps) if crossings(X[t], faces, edges).shape[0]]
             run = float(np.median(k["runs"]))
-            row = {"n": n, "particles": c.num_particles, "dtype": np.dtype(dtype).name, "self_contact": on,
+            row = {"n": n, "particles": c.num_particles, "solver": "jaxsim ImplicitEuler", "dtype": np.dtype(dtype).name,
+                   "self_contact": on,
                    "steps": steps, "ms_per_step": 1e3 * run / steps, "compile_s": max(k["first_s"] - run, 0.0),
                    "converged_share": float(np.mean(info.converged)), "stable": bool(np.all(info.stable)),
                    "substeps_max": int(np.max(info.substeps)), "newton_per_step": float(np.mean(info.newton_iters)),
@@ -104,6 +177,13 @@ def main():
         off_ms = rows[-1]["ms_per_step"]
         rows[-2]["cost_ratio"] = on_ms / off_ms
         print(f"{np.dtype(dtype).name}: self-contact costs {on_ms / off_ms:.2f}x", flush=True)
+    if not a.no_vbd:
+        dhat = float(layers(n, np.float32, True).contact_gap)
+        for sub in (1, 2, 5, 10):
+            rows.append(vbd(n, steps, dhat, sub))
+            print(rows[-1], flush=True)
+            if rows[-1]["stable"] and rows[-1]["frames_intersecting"] == 0:
+                break
     name = "cloth_self_contact" + ("_quick" if a.quick else "")
     write(name, {"rows": rows, "dt": 1 / 60, "quick": bool(a.quick), "rounds": a.rounds})
 
