@@ -100,9 +100,13 @@ def substeps_table():
     return "\n".join(out)
 
 
+def _fall(r):
+    return f"{r['fall']:.2f}" if "fall" in r else ""
+
+
 def self_contact_table():
     out = ["| layers | solver | dtype | self-contact | converged | substeps (most) | Newton/step | ms/step | cost | "
-           "compile (s) | frames intersecting | least gap (mm) |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+           "compile (s) | frames intersecting | least gap (mm) | fall |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for name in ("cloth_self_contact_quick", "cloth_self_contact"):
         if not os.path.exists(os.path.join(RESULTS, name + ".json")):
             continue
@@ -111,13 +115,14 @@ def self_contact_table():
             if r.get("solver") == "newton VBD":
                 stable = "" if r["stable"] else " (unstable)"
                 out.append(f"{head}| newton VBD{stable} | {r['dtype']} | on | | {r['substeps_per_frame']} a frame | | "
-                           f"{r['ms_per_step']:.0f} | | {r['compile_s']:.1f} | {r['frames_intersecting']} | |")
+                           f"{r['ms_per_step']:.0f} | | {r['compile_s']:.1f} | {r['frames_intersecting']} | | "
+                           f"{_fall(r)} |")
                 continue
             cost = f"{r['cost_ratio']:.1f}x" if "cost_ratio" in r else "1"
             out.append(f"{head}| jaxsim | {r['dtype']} | {'on' if r['self_contact'] else 'off'} | "
                        f"{100 * r['converged_share']:.1f}% | {r['substeps_max']} | {r['newton_per_step']:.1f} | "
                        f"{r['ms_per_step']:.0f} | {cost} | {r['compile_s']:.1f} | {r['frames_intersecting']} | "
-                       f"{1e3 * r['least_layer_gap_m']:.2f} |")
+                       f"{1e3 * r['least_layer_gap_m']:.2f} | {_fall(r)} |")
     return "\n".join(out)
 
 
