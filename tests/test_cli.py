@@ -17,9 +17,12 @@ def test_demo_fast_writes_summary(tmp_path):
     assert "| circle | fabrik | 150 |" in text and "Cloth" in text
     assert str(out) in r.stdout or os.path.abspath(str(out)) in r.stdout
     assert "[demo] IK 1/7" in r.stdout and "[demo] cloth" in r.stdout  # progress per scene
-    assert "[demo] section 5/7, cloth with colliders: done in" in r.stdout
-    assert "[demo] section 6/7, the CMU walk: done in" in r.stdout
-    assert "[demo] section 7/7, a cape on the CMU walk: done in" in r.stdout
+    assert "[demo] section 5/8, cloth with colliders: done in" in r.stdout
+    assert "[demo] section 6/8, the CMU walk: done in" in r.stdout
+    assert "[demo] section 7/8, a cape on the CMU walk: done in" in r.stdout
+    assert "[demo] section 8/8, a strip piling onto itself: done in" in r.stdout
+    row = text.split("## Cloth self-contact")[1].splitlines()[4].split("|")
+    assert row[2].strip() == "39" and row[8].strip() == "100%" and row[9].strip() == "0"  # converged, never crossed
     row = text.split("## Cloth on a character")[1].splitlines()[4].split("|")
     assert row[1].strip() == "100" and row[2].strip() == "45" and row[6].strip() == "100%"  # every step converged
     assert float(row[8]) > 0  # never inside the body
@@ -30,6 +33,7 @@ def test_demo_fast_writes_summary(tmp_path):
     walk = Image.open(out / "anim_walk.gif")
     assert walk.n_frames == 12 and min(walk.size) >= 480
     assert Image.open(out / "cape.gif").n_frames == 16  # 46 states, every 3rd
+    assert Image.open(out / "cloth_pile.gif").n_frames == 11  # 31 states, every 3rd
     assert "(running" not in text  # the summary, written after every section, is complete
     from PIL import Image
 

@@ -9,6 +9,7 @@ from ._timing import timed
 from .demo_anim import anim_section
 from .demo_cape import cape_section
 from .demo_contact import contact_section
+from .demo_pile import pile_section
 
 
 def _ik_section(out: str, fast: bool, lines: list[str]) -> None:
@@ -152,7 +153,7 @@ def run(out: str = "jaxsim-demo", fast: bool = False, checkpoint=None) -> int:
     sections = ((_ik_section, "IK on the lab arm"), (_humanoid_section, "the humanoid"),
                 (_limits_section, "the humanoid with limits"), (_cloth_section, "the lab cloth"),
                 (contact_section, "cloth with colliders"), (anim_section, "the CMU walk"),
-                (cape_section, "a cape on the CMU walk"))
+                (cape_section, "a cape on the CMU walk"), (pile_section, "a strip piling onto itself"))
     for k, (section, what) in enumerate(sections, start=1):
         with Stage("[demo]", f"section {k}/{len(sections)}, {what}", key=f"demo {mode} {section.__name__}"):
             section(out, fast, lines)
@@ -165,5 +166,5 @@ def run(out: str = "jaxsim-demo", fast: bool = False, checkpoint=None) -> int:
         f.write("\n".join(lines) + "\n")
     print("\n".join(lines))
     print(f"[demo] wrote {os.path.abspath(out)}/ (summary.md, ik_*.gif, ik_*.png, humanoid.gif, cloth.gif, cloth.png, "
-          "cloth_sphere.gif, cloth_floor.gif, anim_walk.gif, cape.gif)")
+          "cloth_sphere.gif, cloth_floor.gif, anim_walk.gif, cape.gif, cloth_pile.gif)")
     return 0
