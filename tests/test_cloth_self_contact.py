@@ -170,6 +170,29 @@ def test_broadphase_overflow_is_reported():
     assert bool(bp.overlapping_jit(lo, hi, lo, hi, 40000, same=True).overflow) is False
 
 
+def test_two_layers_closer_than_a_cell_do_not_overflow_the_search():
+    """Two 32x32 layers 3 cm apart (``benchmarks/cloth_self_contact.py``): their cells
+    (3.4 cm) hold both layers, and a fall of 5 mm or 2 cm moves boxes across cells' faces.
+    The edge-edge box pairs are those at rest, with no overflow (with 8 matches a slot
+    the search overflowed from 5 mm on)."""
+    n = 31
+    top = C.grid(n, 1 / n, origin=(-0.5, 0.98, -0.5)).rest
+    low = C.grid(n, 1 / n, origin=(-0.49, 0.95, -0.49)).rest
+    T = C.grid_triangles(n)
+    c = C.from_mesh(np.concatenate([top, low]), np.concatenate([T, T + (n + 1) ** 2]), stiffness=1e3,
+                    density=0.25, dtype=np.float32, self_contact=True)
+    sc_ = build(c, 1.0)
+    E = sc_.edges
+    counts = []
+    for fall in (0.0, 0.005, 0.02):
+        dx = jnp.zeros_like(c.rest).at[:, 1].set(-fall)
+        lo, hi = sct._boxes(E, c.rest, dx, 0.5 * sc_.dhat)
+        found = bp.overlapping_jit(lo, hi, lo, hi, sct.BOX_SLOTS * E.shape[0], E, E, same=True)
+        assert not bool(found.overflow), fall
+        counts.append(int(found.count))
+    assert counts[0] > 10000 and counts == [counts[0]] * 3
+
+
 def test_additive_ccd_is_safe_and_close():
     """A point moving onto a triangle, and two crossing edges: the time returned is before
     the exact time of impact, within the separation target of it, and 1 when they miss."""

@@ -20,8 +20,11 @@ from ..._dataclass import pytree_dataclass
 
 #: Matches looked at per slot: a box covers about 4 cells of a cloth's grid, each holding
 #: about 10 boxes, so matches outnumber the overlapping pairs about 25 to 1 (two 8x8
-#: layers, ``benchmarks/cloth_self_contact.py``).
-RAW_PER_SLOT = 8
+#: layers, ``benchmarks/cloth_self_contact.py``).  Two layers closer than a cell share
+#: cells, and a motion across a cell's face doubles a box's cells: with 8 the edge-edge
+#: search of two 32x32 layers 3 cm apart overflowed on a 5 mm fall (docs/notebook.md,
+#: "the 32x32 layers fail"); 12 was enough there up to 2 cm.
+RAW_PER_SLOT = 16
 
 #: Offsets of the 2 x 2 x 2 cells a box may cover, from its lowest cell.
 _CORNERS = jnp.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)], jnp.int32)
