@@ -40,6 +40,7 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from _common import write  # noqa: E402
+from cloth_vbd import Frames  # noqa: E402
 
 from jaxsim import cloth as C  # noqa: E402
 from jaxsim.cloth._self.intersect import crossings  # noqa: E402
@@ -106,29 +107,18 @@ def vbd(n, steps, dhat, substeps):
     model.soft_contact_mu = 0.4
     solver = newton.solvers.SolverVBD(model=model, iterations=10, particle_enable_self_contact=True,
                                       particle_self_contact_margin=dhat, particle_self_contact_gap=dhat)
-    s0, s1, ctrl = model.state(), model.state(), model.control()
-    pipe = newton.CollisionPipeline(model)
-    contacts = pipe.contacts()
-    dt = 1 / 60 / substeps
-
-    def frame():
-        nonlocal s0, s1
-        for _ in range(substeps):
-            s0.clear_forces()
-            pipe.collide(s0, contacts)
-            solver.step(s0, s1, ctrl, contacts, dt)
-            s0, s1 = s1, s0
-        wp.synchronize()
-
+    sim = Frames(newton, model, solver, substeps, fps=60)
     t0 = time.perf_counter()
-    frame()  # Warp builds its kernels on the first use
+    sim.frame()  # Warp builds its kernels on the first use
+    wp.synchronize()
     build = time.perf_counter() - t0
-    run, frames = 0.0, [s0.particle_q.numpy().copy()]  # after frame 1
+    run, frames = 0.0, [sim.q]  # after frame 1
     for _ in range(steps - 1):
         t0 = time.perf_counter()
-        frame()
+        sim.frame()
+        wp.synchronize()
         run += time.perf_counter() - t0
-        frames.append(s0.particle_q.numpy().copy())
+        frames.append(sim.q)
     X = np.stack(frames).astype(np.float64)
     faces = model.tri_indices.numpy()
     edges = _edges(faces)

@@ -62,6 +62,28 @@ def ours(n, dtype, integ):
             "converged_share": float(jnp.mean(infos.converged)), "substeps_total": int(jnp.sum(infos.substeps))}
 
 
+class Frames:
+    """Steps a Newton model by frames of ``substeps`` VBD substeps at ``fps``, its collision
+    pipeline run before each substep (``frame()``; ``q``: the particles' positions)."""
+
+    def __init__(self, newton, model, solver, substeps, fps=FPS):
+        self.model, self.solver, self.substeps, self.dt = model, solver, substeps, 1 / fps / substeps
+        self.s0, self.s1, self.ctrl = model.state(), model.state(), model.control()
+        self.pipe = newton.CollisionPipeline(model)
+        self.contacts = self.pipe.contacts()
+
+    def frame(self):
+        for _ in range(self.substeps):
+            self.s0.clear_forces()
+            self.pipe.collide(self.s0, self.contacts)
+            self.solver.step(self.s0, self.s1, self.ctrl, self.contacts, self.dt)
+            self.s0, self.s1 = self.s1, self.s0
+
+    @property
+    def q(self):
+        return self.s0.particle_q.numpy().copy()
+
+
 def vbd(n, substeps):
     import newton
     import warp as wp
@@ -80,26 +102,14 @@ def vbd(n, substeps):
     model = b.finalize(device="cpu")
     model.soft_contact_mu = MU
     solver = newton.solvers.SolverVBD(model=model, iterations=10)
-    s0, s1, ctrl = model.state(), model.state(), model.control()
-    pipe = newton.CollisionPipeline(model)
-    contacts = pipe.contacts()
-    dt = 1 / FPS / substeps
+    run = Frames(newton, model, solver, substeps)
     frames = []
-
-    def frame():
-        nonlocal s0, s1
-        for _ in range(substeps):
-            s0.clear_forces()
-            pipe.collide(s0, contacts)
-            solver.step(s0, s1, ctrl, contacts, dt)
-            s0, s1 = s1, s0
-
-    _, build, _ = _timed(lambda: (frame(), wp.synchronize()))  # Warp builds its kernels on the first use
+    _, build, _ = _timed(lambda: (run.frame(), wp.synchronize()))  # Warp builds its kernels on the first use
     w = c = 0.0
     for _ in range(FRAMES - 1):
-        _, dw, dc = _timed(lambda: (frame(), wp.synchronize()))
+        _, dw, dc = _timed(lambda: (run.frame(), wp.synchronize()))
         w, c = w + dw, c + dc
-        frames.append(s0.particle_q.numpy().copy())  # read back outside the timing's share of the work
+        frames.append(run.q)  # read back outside the timing's share of the work
     x = np.stack(frames)
     sphere = np.array([0.0, 0.0, SPHERE_C[1]])
     gap = min(float(np.linalg.norm(x - sphere, axis=-1).min()) - SPHERE_R, float(x[..., 2].min()))
