@@ -159,6 +159,43 @@ def test_broadphase_reports_each_pair_once(monkeypatch, packed_bits, hashed):
     assert _pair_list(same) == sorted((int(i), int(j)) for i, j in zip(*np.nonzero(ref)) if i < j)
 
 
+@pytest.mark.parametrize("packed_bits", [bp.PACKED_ID_BITS, 0])
+def test_broadphase_in_small_chunks_and_the_narrow_phase(monkeypatch, packed_bits):
+    """The search walked 16 matches at a time (many passes of its loop) finds the
+    brute-force pairs in the order of one pass; ``kept`` keeps those a test passes, in
+    order, and says when they outnumber its slots."""
+    rng = np.random.default_rng(11)
+    lo_a, hi_a = _boxes(rng, 120, 0.15)
+    lo_b, hi_b = _boxes(rng, 90, 0.15)
+    monkeypatch.setattr(bp, "PACKED_ID_BITS", packed_bits)
+    f = jax.jit(lambda *a, **k: bp.overlapping(*a, **k), static_argnames=("capacity", "same"))
+    whole = [f(lo_a, hi_a, lo_b, hi_b, capacity=4000), f(lo_a, hi_a, lo_a, hi_a, capacity=4000, same=True)]
+    monkeypatch.setattr(bp, "CHUNK", 16)
+    f = jax.jit(lambda *a, **k: bp.overlapping(*a, **k), static_argnames=("capacity", "same"))
+    small = [f(lo_a, hi_a, lo_b, hi_b, capacity=4000), f(lo_a, hi_a, lo_a, hi_a, capacity=4000, same=True)]
+    for one, many in zip(whole, small):
+        assert int(one.count) > 3 * 16 and int(many.count) == int(one.count) and not bool(many.overflow)
+        for u, v in ((one.a, many.a), (one.b, many.b), (one.on, many.on)):
+            np.testing.assert_array_equal(np.asarray(u), np.asarray(v))
+    ref = np.all((np.asarray(lo_a)[:, None] <= np.asarray(hi_b)[None]) & (np.asarray(lo_b)[None] <= np.asarray(hi_a)[:, None]), -1)
+    assert _pair_list(small[0]) == sorted(zip(*map(np.ndarray.tolist, np.nonzero(ref))))
+    found = small[0]
+    on = np.asarray(found.on)
+    a, b = np.asarray(found.a)[on], np.asarray(found.b)[on]
+    want = np.stack([a, b, a + b, a * b], axis=1)[(a + b) % 3 == 0]
+
+    def test(a, b):
+        return jnp.stack([a, b, a + b, a * b], axis=1), (a + b) % 3 == 0
+
+    k = jax.jit(lambda fd, cap: bp.kept(fd, test, cap, 4), static_argnums=1)
+    got = k(found, 4000)
+    assert int(got.count) == len(want) and not bool(got.overflow)
+    np.testing.assert_array_equal(np.asarray(got.a)[np.asarray(got.on)], want)
+    short = k(found, len(want) - 1)
+    assert bool(short.overflow)
+    np.testing.assert_array_equal(np.asarray(short.a), want[:-1])
+
+
 def test_broadphase_overflow_is_reported():
     rng = np.random.default_rng(1)
     lo, hi = _boxes(rng, 200, 0.2)

@@ -119,14 +119,15 @@ def pairs(sc: SelfContact, x, dx=None) -> PairSet:
     # box pairs, before the narrow phase: in a cloth's own plane many boxes touch
     pt = bp.overlapping(lo_p, hi_p, lo_f, hi_f, BOX_SLOTS * F.shape[0], pts, F)
     ee = bp.overlapping(lo_e, hi_e, lo_e, hi_e, BOX_SLOTS * E.shape[0], E, E, same=True)
-    pt_ids = jnp.concatenate([pt.a[:, None], F[pt.b]], axis=1)
-    ee_ids = jnp.concatenate([E[ee.a], E[ee.b]], axis=1)
+
     # the narrow phase: only pairs whose distance can reach dhat on the motion
-    near_pt = jnp.sqrt(_pt_dist2(x, pt_ids)) - (0.0 if dx is None else ccd.reach(dx[pt_ids], 1))
-    near_ee = jnp.sqrt(_ee_dist2(x, ee_ids)) - (0.0 if dx is None else ccd.reach(dx[ee_ids], 2))
-    pt2 = bp.compact(pt_ids, None, pt.on & (near_pt <= sc.dhat), cap)
-    ee2 = bp.compact(ee_ids, None, ee.on & (near_ee <= sc.dhat), cap)
-    return PairSet(pt2.a, ee2.a, pt2.on, ee2.on, pt.overflow | ee.overflow | pt2.overflow | ee2.overflow)
+    def near(ids, dist2, split):
+        d = jnp.sqrt(dist2(x, ids)) - (0.0 if dx is None else ccd.reach(dx[ids], split))
+        return ids, d <= sc.dhat
+
+    pt2 = bp.kept(pt, lambda a, b: near(jnp.concatenate([a[:, None], F[b]], axis=1), _pt_dist2, 1), cap, 4)
+    ee2 = bp.kept(ee, lambda a, b: near(jnp.concatenate([E[a], E[b]], axis=1), _ee_dist2, 2), cap, 4)
+    return PairSet(pt2.a, ee2.a, pt2.on, ee2.on, pt2.overflow | ee2.overflow)
 
 
 def empty_pairs(sc: SelfContact) -> PairSet:
@@ -226,7 +227,7 @@ def step_bound(sc: SelfContact, s: PairSet, x, dx, t_max, chunk: int = PAIR_CHUN
     of ``s`` crosses (additive CCD).
 
     The pairs are taken ``chunk`` slots at a time, up to the last slot that holds a pair
-    (the broadphase puts them first, ``broadphase.compact``): an empty slot's stand-in does
+    (the broadphase puts them first, ``broadphase.kept``): an empty slot's stand-in does
     not move and allows the whole step, so the bound is the one over every slot."""
     t = jnp.asarray(t_max, x.dtype)
     for ids, on, dist2, split in ((s.pt, s.pt_on, point_triangle2, 1), (s.ee, s.ee_on, segment_segment2, 2)):
