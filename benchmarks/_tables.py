@@ -119,7 +119,8 @@ def self_contact_table():
                            f"{_fall(r)} |")
                 continue
             cost = f"{r['cost_ratio']:.1f}x" if "cost_ratio" in r else "1"
-            out.append(f"{head}| jaxsim | {r['dtype']} | {'on' if r['self_contact'] else 'off'} | "
+            solver = "jaxsim" if r.get("newton_iters") is None else f"jaxsim, newton_iters={r['newton_iters']}"
+            out.append(f"{head}| {solver} | {r['dtype']} | {'on' if r['self_contact'] else 'off'} | "
                        f"{100 * r['converged_share']:.1f}% | {r['substeps_max']} | {r['newton_per_step']:.1f} | "
                        f"{r['ms_per_step']:.0f} | {cost} | {r['compile_s']:.1f} | {r['frames_intersecting']} | "
                        f"{1e3 * r['least_layer_gap_m']:.2f} | {_fall(r)} |")

@@ -4,7 +4,9 @@ Two ``n x n`` layers 1.0 m across (0.25 kg each, k = 1e3, damping 0.01), 3 cm ap
 shifted 1 cm against each other, dropped from rest 0.1 m above a sphere (radius 0.35,
 friction 0.4), dt = 1/60, float64 and float32.  Each case runs the default
 ``ImplicitEuler()`` on the scene with ``self_contact=True`` and on the same scene
-without, alternated in one process (warm rollouts, compile apart): ms per step, the
+without, alternated in one process (warm rollouts, compile apart), and with self-contact
+and ``newton_iters=100`` (``--iters``: more iterations before a step splits into
+substeps; ``cost`` is against the default scene without self-contact): ms per step, the
 share of steps converged, substeps, Newton iterations, the frames in which some edge
 passes through a triangle (``jaxsim.cloth._self.intersect``), and the least distance
 between the layers.
@@ -21,7 +23,7 @@ the first 0.1 s (before they reach the sphere) over free fall's ``g t^2 / 2``, f
 solvers.  Per row: ms per step (per frame), and the frames in which some edge passes
 through a triangle, by the same checker on VBD's own triangles.
 
-Run: ``python benchmarks/cloth_self_contact.py [--quick] [--n 32] [--steps 60] [--dtypes float32] [--no-vbd]``;
+Run: ``python benchmarks/cloth_self_contact.py [--quick] [--n 32] [--steps 60] [--dtypes float32] [--iters 100] [--no-vbd]``;
 writes ``benchmarks/results/cloth_self_contact.json`` (``--quick``: 16x16 layers over 30 steps,
 ``cloth_self_contact_quick.json``).
 """
@@ -141,35 +143,42 @@ def main():
     ap.add_argument("--rounds", type=int, default=2)
     ap.add_argument("--dtypes", default="float64,float32")
     ap.add_argument("--no-vbd", action="store_true", help="leave Newton's VBD out")
+    ap.add_argument("--iters", default="100",
+                    help="more Newton iterations before a split, with self-contact (comma list; '' for none)")
     a = ap.parse_args()
     n, steps = (16, 30) if a.quick else (a.n, a.steps)
     rows = []
     for dtype in [np.dtype(d).type for d in a.dtypes.split(",")]:
         cases = {}
-        for on in (True, False):
+        # (self-contact, newton_iters): the default both ways, and with more iterations an
+        # attempt before it splits into substeps (ImplicitEuler's newton_iters)
+        keys = [(True, None), (False, None)] + [(True, int(k)) for k in a.iters.split(",") if k]
+        for on, iters in keys:
             c = layers(n, dtype, on)
             s0 = C.State.at_rest(c)
-            f = jax.jit(lambda s, c=c: C.rollout(c, s, 1 / 60, steps))
+            integ = C.ImplicitEuler() if iters is None else C.ImplicitEuler(newton_iters=iters)
+            f = jax.jit(lambda s, c=c, integ=integ: C.rollout(c, s, 1 / 60, steps, integ))
             t0 = time.perf_counter()
             out = jax.block_until_ready(f(s0))
-            cases[on] = {"scene": c, "f": f, "s0": s0, "first_s": time.perf_counter() - t0, "runs": [], "out": out}
+            cases[on, iters] = {"scene": c, "f": f, "s0": s0, "first_s": time.perf_counter() - t0, "runs": [], "out": out}
         for _ in range(a.rounds):  # alternated warm runs
-            for on in (True, False):
-                k = cases[on]
+            for key in keys:
+                k = cases[key]
                 t0 = time.perf_counter()
                 jax.block_until_ready(k["f"](k["s0"]))
                 k["runs"].append(time.perf_counter() - t0)
-        for on in (True, False):
-            k = cases[on]
+        off_ms = None
+        for on, iters in keys:
+            k = cases[on, iters]
             states, info = k["out"]
             X = np.asarray(states.x, np.float64)
             c = k["scene"]
-            ref = cases[True]["scene"]  # the same triangles, for the scene without self-contact too
+            ref = cases[True, None]["scene"]  # the same triangles, for the scene without self-contact too
             faces, edges = ref.contact_faces, ref.contact_edges
             bad = [t for t in range(steps) if crossings(X[t], faces, edges).shape[0]]
             run = float(np.median(k["runs"]))
             row = {"n": n, "particles": c.num_particles, "solver": "jaxsim ImplicitEuler", "dtype": np.dtype(dtype).name,
-                   "self_contact": on,
+                   "self_contact": on, "newton_iters": iters,
                    "steps": steps, "ms_per_step": 1e3 * run / steps, "compile_s": max(k["first_s"] - run, 0.0),
                    "converged_share": float(np.mean(info.converged)), "stable": bool(np.all(info.stable)),
                    "substeps_max": int(np.max(info.substeps)), "newton_per_step": float(np.mean(info.newton_iters)),
@@ -179,11 +188,13 @@ def main():
                    "fall": fall_ratio(np.asarray(k["s0"].x)[:, 1], X[FALL_FRAMES - 1, :, 1], 9.8),
                    "pair_overflow": bool(np.any(info.pair_overflow)) if on else None}
             rows.append(row)
+            if not on:
+                off_ms = row["ms_per_step"]
+        for row in rows[-len(keys):]:
+            if row["self_contact"]:
+                row["cost_ratio"] = row["ms_per_step"] / off_ms
             print(row, flush=True)
-        on_ms = rows[-2]["ms_per_step"]
-        off_ms = rows[-1]["ms_per_step"]
-        rows[-2]["cost_ratio"] = on_ms / off_ms
-        print(f"{np.dtype(dtype).name}: self-contact costs {on_ms / off_ms:.2f}x", flush=True)
+        print(f"{np.dtype(dtype).name}: self-contact costs {rows[-len(keys)]['cost_ratio']:.2f}x", flush=True)
     if not a.no_vbd:
         dhat = float(layers(n, np.float32, True).contact_gap)
         for sub in (1, 2, 5, 10, 20):
