@@ -170,17 +170,24 @@ def overlapping(lo_a, hi_a, lo_b, hi_b, capacity: int, ids_a=None, ids_b=None, s
         corner = cell_of(jnp.maximum(lo_a[a], lo_b[b]))
         hit = (slot < jnp.minimum(total, raw)) & jnp.all(corner == cells_a[q], axis=-1)
         hit = hit & jnp.all((lo_a[a] <= hi_b[b]) & (lo_b[b] <= hi_a[a]), axis=-1)
-        if same:
+        if same:  # (the unpacked table's runs hold every box)
             hit = hit & (a < b)
         if ids_a is not None:
             hit = hit & ~jnp.any(ids_a[a][:, :, None] == ids_b[b][:, None, :], axis=(1, 2))
-        at = jnp.where(hit, count + jnp.cumsum(hit, dtype=jnp.int32) - 1, capacity)
-        return out_a.at[at].set(a, mode="drop"), out_b.at[at].set(b, mode="drop"), count + jnp.sum(hit, dtype=jnp.int32)
+        (out_a, out_b), count = _append((out_a, out_b), (a, b), hit, count)
+        return out_a, out_b, count
 
     z = jnp.zeros(capacity, jnp.int32)
     # only the chunks that hold matches: the work follows the matches, not the budget
     a, b, count = lax.fori_loop(0, (jnp.minimum(total, raw) + CHUNK - 1) // CHUNK, chunk, (z, z, jnp.int32(0)))
     return Pairs(a, b, jnp.arange(capacity) < count, count, (count > capacity) | (total > raw))
+
+
+def _append(outs, rows, hit, count):
+    """``(outs, count)``: the ``rows`` where ``hit (C,)`` written in order after the first
+    ``count`` rows of each of ``outs`` (those past the end dropped), and the new count."""
+    at = jnp.where(hit, count + jnp.cumsum(hit, dtype=jnp.int32) - 1, outs[0].shape[0])
+    return tuple(o.at[at].set(r, mode="drop") for o, r in zip(outs, rows)), count + jnp.sum(hit, dtype=jnp.int32)
 
 
 def kept(found: Pairs, test, capacity: int, width: int) -> Pairs:
@@ -206,9 +213,8 @@ def kept(found: Pairs, test, capacity: int, width: int) -> Pairs:
         out, count = carry
         a, b, on = (lax.dynamic_slice_in_dim(v, i * CHUNK, CHUNK) for v in (fa, fb, fon))
         r, keep = test(a, b)
-        hit = on & keep
-        at = jnp.where(hit, count + jnp.cumsum(hit, dtype=jnp.int32) - 1, capacity)
-        return out.at[at].set(r, mode="drop"), count + jnp.sum(hit, dtype=jnp.int32)
+        (out,), count = _append((out,), (r,), on & keep, count)
+        return out, count
 
     used = jnp.minimum(found.count, P)
     out, count = lax.fori_loop(0, (used + CHUNK - 1) // CHUNK, chunk,
