@@ -45,6 +45,7 @@ from _common import write  # noqa: E402
 from cloth_vbd import Frames  # noqa: E402
 
 from jaxsim import cloth as C  # noqa: E402
+from jaxsim.cloth._model.scene import check_faces  # noqa: E402
 from jaxsim.cloth._self.intersect import crossings  # noqa: E402
 
 
@@ -80,11 +81,6 @@ def fall_ratio(h0, h, g):
     over free fall's."""
     t = FALL_FRAMES / 60
     return float(np.mean(h0 - h) / (0.5 * g * t * t))
-
-
-def _edges(faces):
-    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    return np.unique(np.sort(e, axis=1), axis=0)
 
 
 def vbd(n, steps, dhat, substeps):
@@ -123,7 +119,7 @@ def vbd(n, steps, dhat, substeps):
         frames.append(sim.q)
     X = np.stack(frames).astype(np.float64)
     faces = model.tri_indices.numpy()
-    edges = _edges(faces)
+    edges = check_faces(faces, X.shape[1], True)[1]  # the unique edges, as a scene derives them
     finite = bool(np.all(np.isfinite(X)))
     bad = [t for t in range(steps) if finite and crossings(X[t], faces, edges).shape[0]]
     gap = min(float(np.linalg.norm(X - np.array([0.0, 0.0, 0.5]), axis=-1).min()) - 0.35, float(X[..., 2].min()))
