@@ -13,10 +13,11 @@ from hypothesis import given, settings, strategies as st
 from scipy.optimize import minimize
 
 from jaxsim import cloth as C
-from jaxsim.cloth._self import broadphase as bp, ccd, terms as sct
+from jaxsim.cloth._self import broadphase as bp, ccd, pairs as sp, terms as sct
 from jaxsim.cloth._self.distance import columns, pair_distance2, point_triangle2, point_triangle2_soa, \
     segment_segment2, segment_segment2_soa
 from jaxsim.cloth._self.terms import _pair_energy, build
+from jaxsim.cloth._implicit.contact import _d, barrier
 
 from _helpers import all_eqns, self_intersections, step_jaxpr, triangle_pairs_intersect
 
@@ -219,12 +220,10 @@ def test_two_layers_closer_than_a_cell_do_not_overflow_the_search():
     c = C.from_mesh(np.concatenate([top, low]), np.concatenate([T, T + (n + 1) ** 2]), stiffness=1e3,
                     density=0.25, dtype=np.float32, self_contact=True)
     sc_ = build(c, 1.0)
-    E = sc_.edges
     counts = []
     for fall in (0.0, 0.005, 0.02):
         dx = jnp.zeros_like(c.rest).at[:, 1].set(-fall)
-        lo, hi = sct._boxes(E, c.rest, dx, 0.5 * sc_.dhat)
-        found = bp.overlapping_jit(lo, hi, lo, hi, sct.BOX_SLOTS * E.shape[0], E, E, same=True)
+        found = jax.jit(sp.candidates)(sc_, c.rest, dx).ee
         assert not bool(found.overflow), fall
         counts.append(int(found.count))
     assert counts[0] > 10000 and counts == [counts[0]] * 3
@@ -264,7 +263,7 @@ def test_step_bound_in_chunks_equals_additive_ccd_over_every_slot():
     x = c.rest
     rng = np.random.default_rng(5)
     dx = jnp.asarray(rng.normal(scale=0.004, size=x.shape)).at[: c.num_particles // 2, 1].add(-0.004)
-    s = sct.pairs(sc_, x, dx)
+    s = sp.pairs(sc_, x, dx)
     assert 8 < int(jnp.sum(s.pt_on)) and 8 < int(jnp.sum(s.ee_on))
 
     @jax.jit
@@ -287,6 +286,98 @@ def test_step_bound_in_chunks_equals_additive_ccd_over_every_slot():
     both = jax.tree.map(lambda a, b: jnp.stack([a, b]), s, gaps)
     t = jax.vmap(lambda p: sct.step_bound(sc_, p, x, dx, 1.0, chunk=3))(both)
     assert [float(v) for v in t] == [float(every_slot(s)[1]), float(every_slot(gaps)[1])]
+
+
+def test_newtons_sums_over_the_slots_in_use_equal_the_definition():
+    """``summed`` (the barrier, its gradient and the force sizes over the slots in use, a
+    chunk at a time) equals ``potential_and_forces`` and its ``jax.grad`` over every slot,
+    and ``blocks`` laid out in chunks equal the blocks over every slot compacted: on a set
+    with empty slots between its pairs, with pinned particles, NaN-free (an empty
+    edge-edge slot's mollifier is 0/0: its derivative must not reach particle 0)."""
+    c = _two_layers(n=4, gap=0.002, self_contact=True)
+    sc_ = build(c, 10.0)
+    x = c.rest
+    rng = np.random.default_rng(3)
+    dx = jnp.asarray(rng.normal(scale=0.003, size=x.shape)).at[: c.num_particles // 2, 1].add(-0.002)
+    s = sp.pairs(sc_, x, dx)
+    n_pt, n_ee = int(jnp.sum(s.pt_on)), int(jnp.sum(s.ee_on))
+    assert n_pt > 8 and n_ee > 8
+    gaps = dataclasses.replace(s, pt_on=s.pt_on.at[3].set(False), ee_on=s.ee_on.at[1].set(False).at[n_ee - 2].set(False))
+    y = x + 0.5 * dx
+    free = jnp.ones((c.num_particles, 1), x.dtype).at[:5].set(0.0)
+    for pset in (s, gaps):
+        sc2 = dataclasses.replace(sc_, pairs=pset)
+        (e0, f0), g0 = jax.value_and_grad(lambda z: sct.potential_and_forces(sc2, z, free), has_aux=True)(y)
+        e1, g1, f1 = jax.jit(sct.summed, static_argnames="chunk")(sc2, y, free, chunk=3)
+        assert e0 > 0 and np.all(np.isfinite(np.asarray(g1)))
+        np.testing.assert_allclose(e1, e0, rtol=1e-12)
+        np.testing.assert_allclose(g1, g0, rtol=1e-10, atol=1e-12 * float(jnp.max(jnp.abs(g0))))
+        np.testing.assert_allclose(f1, f0, rtol=1e-12, atol=0)
+        B = jax.jit(sct.blocks, static_argnames="chunk")(sc2, y, free, chunk=3)
+        ref = []
+        for kind, ids, moves, X in sct._kinds(pset, y, free):
+            d, w = sct._pair_distance(sc2, kind, X, ids)
+            g = jax.grad(lambda Y: jnp.sum(sct._pair_distance(sc2, kind, Y, ids)[0]))(X).reshape(-1, 12)
+            cc = np.asarray(jnp.where(moves, w * jnp.maximum(_d(barrier, 2)(d, sc2.dhat), 0.0), 0.0))
+            g = np.asarray(g * jnp.repeat(free[ids, 0] > 0, 3, axis=1))
+            ref += [(tuple(i), tuple(gi), ci) for i, gi, ci in zip(np.asarray(ids).tolist(), g.tolist(), cc) if ci != 0]
+        k = int(B.count)
+        assert k == len(ref) > 4 and B.ids.shape[0] % 3 == 0 and not np.any(np.asarray(B.c)[k:])
+        assert [tuple(r) for r in np.asarray(B.ids)[:k].tolist()] == [r[0] for r in ref]
+        np.testing.assert_allclose(np.asarray(B.g)[:k], np.array([r[1] for r in ref]), rtol=1e-12, atol=1e-15)
+        np.testing.assert_allclose(np.asarray(B.c)[:k], np.array([r[2] for r in ref]), rtol=1e-12)
+
+
+def _set_of(s):
+    """The pairs of a ``PairSet`` as two sets of id tuples."""
+    return tuple({tuple(r) for r in np.asarray(ids)[np.asarray(on)].tolist()} for ids, on in ((s.pt, s.pt_on), (s.ee, s.ee_on)))
+
+
+def test_a_motion_inside_the_region_draws_every_pair_from_the_candidates():
+    """Candidates found for a motion grown by a margin serve a later motion whose ends stay
+    in that region: ``holds`` says so, and the pairs drawn from them hold every pair a new
+    search finds, and every pair within ``dhat`` at points sampled along the motion (by
+    brute force).  A motion that leaves the region is searched anew.  It fails if the
+    region is not grown (the later motion then leaves it) or if the candidates' boxes are
+    not (pairs are missed)."""
+    c = _two_layers(n=4, gap=0.002, self_contact=True)
+    sc_ = build(c, 10.0)
+    x = c.rest
+    rng = np.random.default_rng(7)
+    top = jnp.arange(c.num_particles) < c.num_particles // 2
+    dx = jnp.asarray(rng.normal(scale=0.001, size=x.shape)).at[:, 1].add(jnp.where(top, -0.001, 0.0))
+    grow = 2.0 * float(sc_.dhat)
+    first = jax.jit(sp.pairs)(sc_, x, dx, grow)
+    assert not bool(first.overflow)
+    # a later motion from a point on the first one, the upper layer coming down: within
+    # the margin of the first motion's boxes
+    x2 = x + 0.7 * dx + jnp.asarray(rng.uniform(-0.15, 0.15, size=x.shape)).at[:, 1].add(jnp.where(top, -0.4, 0.0)) * grow
+    dx2 = jnp.asarray(rng.uniform(-0.15, 0.15, size=x.shape)).at[:, 1].add(jnp.where(top, -0.25, 0.0)) * grow
+    assert bool(sp.holds(first.source, x2, dx2))
+    drawn = jax.jit(sp.draw)(sc_, first, x2, dx2, grow)
+    assert drawn.source is not first.source and jnp.array_equal(drawn.source.lo, first.source.lo)
+    fresh = _set_of(jax.jit(sp.pairs)(sc_, x2, dx2))
+    got = _set_of(drawn)
+    assert fresh[0] <= got[0] and fresh[1] <= got[1] and len(fresh[0]) > 4 and len(fresh[1]) > 4
+    # (the later motion brings pairs within dhat that the first motion's own set lacks)
+    assert not (fresh[0] <= _set_of(first)[0] and fresh[1] <= _set_of(first)[1])
+    # brute force (with the distances checked against numpy references above)
+    F, E = np.asarray(sc_.faces), np.asarray(sc_.edges)
+    pi, fi = (a.ravel() for a in np.meshgrid(np.arange(len(x)), np.arange(len(F)), indexing="ij"))
+    pt_ids = np.concatenate([pi[:, None], F[fi]], axis=1)
+    pt_ids = pt_ids[np.all(pt_ids[:, 1:] != pt_ids[:, :1], axis=1)]
+    ea, eb = np.triu_indices(len(E), 1)
+    ee_ids = np.concatenate([E[ea], E[eb]], axis=1)
+    ee_ids = ee_ids[[len(set(r)) == 4 for r in ee_ids.tolist()]]
+    for t in np.linspace(0.0, 1.0, 5):
+        y = x2 + t * dx2
+        for ids, dist2, want in ((pt_ids, point_triangle2, got[0]), (ee_ids, segment_segment2, got[1])):
+            near = np.asarray(dist2(*(y[ids[:, k]] for k in range(4)))) <= float(sc_.dhat) ** 2
+            assert near.any() and {tuple(r) for r in ids[near].tolist()} <= want
+    # a motion leaving the region is searched anew
+    assert not bool(sp.holds(first.source, x2, dx2 + 3 * grow))
+    far = jax.jit(sp.draw)(sc_, first, x2, dx2 + 3 * grow, grow)
+    assert not jnp.array_equal(far.source.lo, first.source.lo)
 
 
 def _two_layers(n=5, gap=0.04, colliders=(), dtype=np.float64, **kw):

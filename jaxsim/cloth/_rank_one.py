@@ -50,11 +50,18 @@ class RankOne:
         return lax.fori_loop(0, (self.count + n - 1) // n, body, jnp.zeros_like(v))
 
     def diagonal(self, N):
-        """``(N, 3, 3)`` the blocks' 3x3 diagonal blocks summed per particle."""
-        E, k = self.ids.shape
-        g = self.g.reshape(E, k, 3)
-        d = self.c[:, None, None, None] * g[:, :, :, None] * g[:, :, None, :]
-        return jnp.zeros((N, 3, 3), self.g.dtype).at[self.ids].add(d)
+        """``(N, 3, 3)`` the blocks' 3x3 diagonal blocks summed per particle (with ``count``,
+        in chunks up to it, as :meth:`matvec`)."""
+        out = jnp.zeros((N, 3, 3), self.g.dtype)
+        if self.count is None or not self.chunk:
+            return _diagonal(self.ids, self.g, self.c, out)
+        n = self.chunk
+
+        def body(i, out):
+            rows = lambda a: lax.dynamic_slice_in_dim(a, i * n, n)  # noqa: E731
+            return _diagonal(rows(self.ids), rows(self.g), rows(self.c), out)
+
+        return lax.fori_loop(0, (self.count + n - 1) // n, body, out)
 
     def dense(self, N):
         """``(3N, 3N)`` the blocks assembled."""
@@ -62,6 +69,13 @@ class RankOne:
         rows = (self.ids[:, :, None] * 3 + jnp.arange(3)).reshape(E, 3 * k)
         H = self.c[:, None, None] * self.g[:, :, None] * self.g[:, None, :]
         return jnp.zeros((3 * N, 3 * N), self.g.dtype).at[rows[:, :, None], rows[:, None, :]].add(H)
+
+
+def _diagonal(ids, g, c, out):
+    """``out`` plus the groups' 3x3 diagonal blocks, summed per particle."""
+    E, k = ids.shape
+    g = g.reshape(E, k, 3)
+    return out.at[ids].add(c[:, None, None, None] * g[:, :, :, None] * g[:, :, None, :])
 
 
 def _apply(ids, g, c, v, out):

@@ -8,6 +8,7 @@ from jax import lax
 
 from ..._dataclass import pytree_dataclass
 from . import contact as ct
+from .._self import pairs as sp
 from .._self import terms as sc
 from .setup import Evaluation, NewtonSetup
 
@@ -35,10 +36,11 @@ class Trial:
     at: Evaluation
 
 
-def first_step(sv: NewtonSetup, w, dx):
+def first_step(sv: NewtonSetup, w, dx, last=None):
     """``(alpha, pairs)``: 1, or the largest step that crosses no collider's surface and no
     self-contact pair (IPC's CCD line search; additive CCD for the pairs), and the
-    self-contact pairs on the motion to it (``None`` without self-contact)."""
+    self-contact pairs on the motion to it (``None`` without self-contact), drawn from
+    ``last``'s candidates (the pairs at ``w``) where the motion stays in their region."""
     p = sv.p
     a = jnp.ones((), sv.dtype)
     if p.contact is not None:
@@ -46,20 +48,24 @@ def first_step(sv: NewtonSetup, w, dx):
     if p.selfc is None:
         return a, None
     x = p.positions(w)
-    # a long step's boxes can hold more pairs than there are slots: halve it until they fit
-    # (at most SHORTER times; a set that still overflows says so and the step is not taken)
+    grow = sp.margin(p.selfc)
+    # a long step's boxes can hold more pairs than there are slots: search again without
+    # the margin, then halve the step until they fit (at most SHORTER times; a set that
+    # still overflows says so and the step is not taken)
     def shorter(c):
         a, _, k = c
-        a = jnp.where(k > 0, 0.5 * a, a)
-        return a, sc.pairs(p.selfc, x, a * dx), k + 1
+        a = jnp.where(k > 1, 0.5 * a, a)
+        if last is None:
+            return a, sp.pairs(p.selfc, x, a * dx, jnp.where(k == 0, grow, 0.0)), k + 1
+        return a, sp.draw(p.selfc, last, x, a * dx, jnp.where(k == 0, grow, 0.0)), k + 1
 
-    a, seg, _ = lax.while_loop(lambda c: c[1].overflow & (c[2] <= SHORTER), shorter,
-                               (a, sc.empty_pairs(p.selfc), jnp.int32(0)))
+    a, seg, _ = lax.while_loop(lambda c: c[1].overflow & (c[2] <= SHORTER + 1), shorter,
+                               (a, sp.empty_pairs(p.selfc, x.shape[0], x.dtype), jnp.int32(0)))
     return sc.step_bound(p.selfc, seg, x, dx, a), seg
 
 
-def line_search(sv: NewtonSetup, w, gw, gvec, dx, full=False) -> Trial:
-    """Backtrack from ``w`` (objective ``gw``, gradient ``gvec``) along ``dx``.
+def line_search(sv: NewtonSetup, w, gw, gvec, dx, full=False, pairs=None) -> Trial:
+    """Backtrack from ``w`` (objective ``gw``, gradient ``gvec``, self-contact ``pairs``) along ``dx``.
 
     Every trial is evaluated with its gradient and spring terms (one pass over the
     springs), which are the Newton loop's next ones at the accepted trial.  The first
@@ -70,7 +76,7 @@ def line_search(sv: NewtonSetup, w, gw, gvec, dx, full=False) -> Trial:
     integ, h = sv.integ, sv.p.h
     dx = dx * sv.free
     if not integ.line_search:
-        a, seg = first_step(sv, w, dx)
+        a, seg = first_step(sv, w, dx, pairs)
         return Trial(dx, a, jnp.int32(0), sv.evaluate(w + a * dx, seg))
     # keep every step a descent step
     slope = jnp.sum(gvec * dx)
@@ -87,7 +93,7 @@ def line_search(sv: NewtonSetup, w, gw, gvec, dx, full=False) -> Trial:
         armijo = at.g <= gw + GAMMA * a * slope + jnp.where(resolved, 0, slack)
         return (armijo & jnp.isfinite(at.g)) | full | (k >= integ.max_backtracks)
 
-    a0, seg = first_step(sv, w, dx)
+    a0, seg = first_step(sv, w, dx, pairs)
 
     def body(s):
         a, k, _ = s

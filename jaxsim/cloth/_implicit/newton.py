@@ -140,7 +140,7 @@ def iteration(sv: NewtonSetup, s: NewtonState, rtol) -> NewtonState:
     """One Newton iteration: direction, line search, phase bookkeeping, stop test."""
     cur = s.iterate
     d, tried = search_direction(sv, s, cg_tolerance(sv, s, rtol))
-    t = line_search(sv, cur.w, cur.g, cur.grad, d.dx, full=tried)
+    t = line_search(sv, cur.w, cur.g, cur.grad, d.dx, full=tried, pairs=cur.pairs)
     step = t.alpha * t.dx  # dx is 0 on pins
     w_new = cur.w + step
     rel = pr.relative_gradient(t.at.grad, w_new, sv.at(t.at.pairs), t.at.terms, t.at.parts)

@@ -7,7 +7,7 @@ import jax
 from ..._dataclass import pytree_dataclass
 from . import problem as pr
 from .trace import NewtonTrace
-from .._self.terms import PairSet
+from .._self.pairs import PairSet
 
 
 @pytree_dataclass
@@ -22,7 +22,7 @@ class Iterate:
       rel: ``()`` relative gradient ``|grad|_inf / scale`` at ``w``.
       terms: the spring terms at ``w`` (``_implicit.problem.SpringTerms``), which gave ``g``,
         ``grad`` and ``rel`` and give the next iteration's Hessian blocks.
-      pairs: the self-contact pairs counted at ``w`` (``_self.terms.PairSet``), or ``None``.
+      pairs: the self-contact pairs counted at ``w`` (``_self.pairs.PairSet``), or ``None``.
     """
 
     w: jax.Array

@@ -40,14 +40,15 @@ def _aero_potential(w, p):
     return aero_.potential(p.aero, p.displacement(w), p.h)
 
 
-def others(w, p):
-    """``(value (J), force sizes (N,))`` of the colliders', self-contact's and wind's terms."""
+def others(w, p, with_self=True):
+    """``(value (J), force sizes (N,))`` of the colliders', self-contact's (unless not
+    ``with_self``) and wind's terms."""
     c, v = p.cloth, jnp.zeros((), w.dtype)
     f = jnp.zeros((c.num_particles,), w.dtype)
     if p.contact is not None:
         v = v + _contact_potential(w, p)
         f = f + ct.force_magnitudes(p.displacement(w), p.x0, c, p.contact, p.free)
-    if p.selfc is not None:
+    if p.selfc is not None and with_self:
         e, fs = sc.potential_and_forces(p.selfc, p.positions(w), p.free)
         v, f = v + e, f + fs
     if p.aero is not None:
@@ -59,8 +60,14 @@ def others(w, p):
 def contact_parts(w, p) -> ContactParts | None:
     """:class:`ContactParts` at ``w (N, 3)``, or ``None`` for a scene with springs only.  One
     ``jax.value_and_grad``: the pairs' distances are computed once for the value, the
-    gradient and the force sizes."""
+    gradient and the force sizes.  With a self-contact set in use (Newton's evaluations),
+    its terms are summed over the slots in use only (``_self.terms.summed``; ``u`` is
+    ``w`` plus a constant, so their gradient in ``x`` is the one in ``w``)."""
     if not p.has_others:
         return None
-    (v, f), g = jax.value_and_grad(others, has_aux=True)(w, p)
+    in_use = p.selfc is not None and p.selfc.pairs is not None
+    (v, f), g = jax.value_and_grad(others, has_aux=True)(w, p, not in_use)
+    if in_use:
+        e, gs, fs = sc.summed(p.selfc, p.positions(w), p.free)
+        v, g, f = v + e, g + gs, f + fs
     return ContactParts(v, g, f)

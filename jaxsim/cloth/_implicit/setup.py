@@ -12,7 +12,8 @@ from .._integrators import ImplicitEuler
 from .._linear import Cholesky
 from . import problem as pr
 from .hessian import hessian_ops
-from .._self.terms import PairSet, pairs as find_pairs
+from .._self import pairs as sp
+from .._self.pairs import PairSet
 
 
 @pytree_dataclass
@@ -23,7 +24,7 @@ class Evaluation:
       g: ``()`` the objective ``g(w)`` (J).
       grad: ``(N, 3)`` ``grad g(w)`` on free particles, 0 on pinned ones (N).
       terms: the spring terms at ``w`` (``problem.SpringTerms``).
-      pairs: the self-contact pairs ``g`` counted (``_self.terms.PairSet``), ``None``
+      pairs: the self-contact pairs ``g`` counted (``_self.pairs.PairSet``), ``None``
         without self-contact.
       parts: the colliders', self-contact's and wind's terms (``problem.ContactParts``),
         ``None`` for a scene with springs only.
@@ -72,9 +73,10 @@ class NewtonSetup:
 
     def evaluate(self, w, pairs: PairSet | None = None) -> Evaluation:
         """:class:`Evaluation` at ``w (N, 3)``: one pass over the springs.  With self-contact,
-        over ``pairs`` (a set found for a motion through ``w``), by default those at ``w``."""
+        over ``pairs`` (a set found for a motion through ``w``), by default those at ``w``
+        (from a search whose region the next iterations may stay in)."""
         if self.p.selfc is not None and pairs is None:
-            pairs = find_pairs(self.p.selfc, self.p.positions(w))
+            pairs = sp.pairs(self.p.selfc, self.p.positions(w), grow=sp.margin(self.p.selfc))
         p = self.at(pairs)
         t, parts = pr.spring_terms(w, p), pr.contact_parts(w, p)
         return Evaluation(pr.objective(w, p, t, parts), pr.gradient(w, p, t, parts) * self.free, t, pairs, parts)

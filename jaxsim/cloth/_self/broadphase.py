@@ -174,7 +174,7 @@ def overlapping(lo_a, hi_a, lo_b, hi_b, capacity: int, ids_a=None, ids_b=None, s
             hit = hit & (a < b)
         if ids_a is not None:
             hit = hit & ~jnp.any(ids_a[a][:, :, None] == ids_b[b][:, None, :], axis=(1, 2))
-        (out_a, out_b), count = _append((out_a, out_b), (a, b), hit, count)
+        (out_a, out_b), count = append((out_a, out_b), (a, b), hit, count)
         return out_a, out_b, count
 
     z = jnp.zeros(capacity, jnp.int32)
@@ -183,7 +183,7 @@ def overlapping(lo_a, hi_a, lo_b, hi_b, capacity: int, ids_a=None, ids_b=None, s
     return Pairs(a, b, jnp.arange(capacity) < count, count, (count > capacity) | (total > raw))
 
 
-def _append(outs, rows, hit, count):
+def append(outs, rows, hit, count):
     """``(outs, count)``: the ``rows`` where ``hit (C,)`` written in order after the first
     ``count`` rows of each of ``outs`` (those past the end dropped), and the new count."""
     at = jnp.where(hit, count + jnp.cumsum(hit, dtype=jnp.int32) - 1, outs[0].shape[0])
@@ -213,7 +213,7 @@ def kept(found: Pairs, test, capacity: int, width: int) -> Pairs:
         out, count = carry
         a, b, on = (lax.dynamic_slice_in_dim(v, i * CHUNK, CHUNK) for v in (fa, fb, fon))
         r, keep = test(a, b)
-        (out,), count = _append((out,), (r,), on & keep, count)
+        (out,), count = append((out,), (r,), on & keep, count)
         return out, count
 
     used = jnp.minimum(found.count, P)
