@@ -60,7 +60,7 @@ def first_step(sv: NewtonSetup, w, dx, last=None):
         return a, sp.draw(p.selfc, last, x, a * dx, jnp.where(k == 0, grow, 0.0)), k + 1
 
     a, seg, _ = lax.while_loop(lambda c: c[1].overflow & (c[2] <= SHORTER + 1), shorter,
-                               (a, sp.empty_pairs(p.selfc, x.shape[0], x.dtype), jnp.int32(0)))
+                               (a, sp.empty_pairs(p.selfc.capacity, p.selfc.faces, p.selfc.edges, x), jnp.int32(0)))
     return sc.step_bound(p.selfc, seg, x, dx, a), seg
 
 

@@ -167,7 +167,7 @@ def iteration(sv: NewtonSetup, s: NewtonState, rtol) -> NewtonState:
                        anchor=ph.anchor, trace=trace, overflow=overflow)
 
 
-def _start_or_labs(sv: NewtonSetup, wg, w0):
+def _start_or_labs(sv: NewtonSetup, wg, w0, last=None):
     """``(w, evaluation, better)``: the start ``wg`` where ``g`` is lower there than at the lab's
     start ``w0`` (``better``; NaN never wins), else ``w0``.  Without moved pins ``g(w0)``
     costs no pass over the springs (``problem.start_objective``), and ``w0`` is evaluated
@@ -178,7 +178,8 @@ def _start_or_labs(sv: NewtonSetup, wg, w0):
 
     def body(c):
         k, _, e_g, _ = c
-        e = sv.evaluate(jnp.where(k == 0, wg, w0))
+        w = jnp.where(k == 0, wg, w0)
+        e = sv.evaluate(w, sv.pairs_at(w, last))
         if lab_g is not None:  # the lab's start is evaluated (pass 1) only where the start lost
             return k + 1, e, e, (k == 0) & (e.g < lab_g)
         e_g = _where(k == 0, e, e_g)  # pass 0: the start's, kept for pass 1's comparison
@@ -194,19 +195,20 @@ def _start_or_labs(sv: NewtonSetup, wg, w0):
     return jnp.where(better, wg, w0), e, better
 
 
-def initial_state(sv: NewtonSetup, rtol, start=None, tight_first=False, size=None) -> NewtonState:
+def initial_state(sv: NewtonSetup, rtol, start=None, tight_first=False, size=None, pairs=None) -> NewtonState:
     """The loop's first carry: the lab's start ``w = -y`` (or the push-out off a moving
     collider), or ``start`` where ``g`` is lower there (NaN never wins; ``g`` at the lab's
-    start costs no pass over the springs)."""
+    start costs no pass over the springs); its self-contact pairs drawn from ``pairs``'s
+    candidates where it is in their region (``NewtonSetup.pairs_at``)."""
     p, integ, free = sv.p, sv.integ, sv.free
     h = p.h
     w0 = p.start
     tight = jnp.array(False)
     if start is None or p.touches:
         cg0 = h * p.v0 * free  # the first direction is about the displacement h v^n
-        e0 = sv.evaluate(w0)
+        e0 = sv.evaluate(w0, sv.pairs_at(w0, pairs))
     else:
-        w0, e0, better = _start_or_labs(sv, jnp.where(free > 0, start, w0), w0)
+        w0, e0, better = _start_or_labs(sv, jnp.where(free > 0, start, w0), w0, pairs)
         cg0 = jnp.where(better, 0.0, h * p.v0 * free)
         tight = better & tight_first
     z = jnp.zeros((), sv.dtype)
@@ -224,7 +226,7 @@ def initial_state(sv: NewtonSetup, rtol, start=None, tight_first=False, size=Non
 
 
 def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol, start=None, tight_first=False, limit=None,
-           size=None) -> NewtonState:
+           size=None, pairs=None) -> NewtonState:
     """Minimise ``g(., p)`` from ``w = -y`` (the displacement 0, the lab's start), or from
     ``start`` (``(N, 3)``, a deviation ``w``; pinned rows ignored) where ``g`` is lower there.
     ``tight_first``: ``()`` bool, a start one iteration from the solution: the first PCG
@@ -236,11 +238,12 @@ def newton(p: pr.StepProblem, integ: ImplicitEuler, rtol, start=None, tight_firs
     ``max|alpha dx| / h < tol`` holds too; when the gradient is at rounding level, when
     the step is at the rounding level of ``w`` (no further progress is possible), or
     after ``newton_iters`` iterations (``limit``: ``()`` int32, a traced cap in its place, at
-    most ``size``, the trace's length).  Runs on ``stop_gradient`` inputs: derivatives come from
-    the implicit function theorem instead (``_implicit.implicit_diff``).
+    most ``size``, the trace's length).  ``pairs``: the self-contact pairs Newton ended with
+    before (a substep's), whose candidates may serve the start.  Runs on ``stop_gradient``
+    inputs: derivatives come from the implicit function theorem instead (``_implicit.implicit_diff``).
     """
     sv = NewtonSetup(p, integ)
-    s0 = initial_state(sv, rtol, start, tight_first, size)
+    s0 = initial_state(sv, rtol, start, tight_first, size, pairs)
     cap = integ.newton_iters if limit is None else limit
     s = lax.while_loop(lambda s: (s.it < cap) & ~s.done, lambda s: iteration(sv, s, rtol), s0)
     if s.anchor is None:

@@ -71,12 +71,22 @@ class NewtonSetup:
         """The step problem with the self-contact pairs ``pairs`` (itself without self-contact)."""
         return self.p.with_pairs(pairs)
 
+    def pairs_at(self, w, last: PairSet | None = None) -> PairSet | None:
+        """The self-contact pairs at ``w (N, 3)`` (``None`` without self-contact): drawn from
+        ``last``'s candidates where ``w`` is in their region, else from a new search whose
+        region the next iterations may stay in (``_self.pairs``)."""
+        sc = self.p.selfc
+        if sc is None:
+            return None
+        x = self.p.positions(w)
+        return sp.pairs(sc, x, grow=sp.margin(sc)) if last is None else sp.draw(sc, last, x, None, sp.margin(sc))
+
     def evaluate(self, w, pairs: PairSet | None = None) -> Evaluation:
         """:class:`Evaluation` at ``w (N, 3)``: one pass over the springs.  With self-contact,
         over ``pairs`` (a set found for a motion through ``w``), by default those at ``w``
-        (from a search whose region the next iterations may stay in)."""
+        (:meth:`pairs_at`)."""
         if self.p.selfc is not None and pairs is None:
-            pairs = sp.pairs(self.p.selfc, self.p.positions(w), grow=sp.margin(self.p.selfc))
+            pairs = self.pairs_at(w)
         p = self.at(pairs)
         t, parts = pr.spring_terms(w, p), pr.contact_parts(w, p)
         return Evaluation(pr.objective(w, p, t, parts), pr.gradient(w, p, t, parts) * self.free, t, pairs, parts)

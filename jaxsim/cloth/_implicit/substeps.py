@@ -42,6 +42,7 @@ from . import problem as pr
 from .implicit_diff import solution
 from .newton import newton
 from .trace import NewtonTrace
+from .._self.pairs import PairSet, empty_pairs
 
 
 def between(prev, cur, t):
@@ -123,6 +124,8 @@ class SubstepLoop:
       totals: the diagnostics so far (:class:`Totals`).
       before: the memory at ``pos`` (BDF2's ``_implicit.bdf2.Before``, or a TR-BDF2 stage's,
         ``_implicit.trbdf2``), ``None`` for backward Euler.
+      pairs: the self-contact pairs the last accepted substep ended with (its candidates
+        may serve the next attempt's start), ``None`` without self-contact.
     """
 
     x: jax.Array
@@ -137,6 +140,7 @@ class SubstepLoop:
     failed: jax.Array
     totals: Totals
     before: bdf2.Before | None = None
+    pairs: PairSet | None = None
 
 
 #: An attempt at the deepest level (``max_substep_depth``), which is kept converged or not,
@@ -194,7 +198,7 @@ def search(cloth, x0, v0, h, integ, rtol, prev, layout, start, tight, before, pi
         # the deepest level has no halves to fall back on: LAST_NEWTON times the iterations
         s = newton(p, integ, rtol, w0, tight_first=tight & (c.tries == 0),
                    limit=jnp.where(c.level == D, LAST_NEWTON * integ.newton_iters, integ.newton_iters),
-                   size=LAST_NEWTON * integ.newton_iters)
+                   size=LAST_NEWTON * integ.newton_iters, pairs=c.pairs)
         end = s.iterate
         x, v = advance(p, end.w)
         ok = ~s.fail & bounded(cloth, x, v)
@@ -220,7 +224,8 @@ def search(cloth, x0, v0, h, integ, rtol, prev, layout, start, tight, before, pi
                            tries=c.tries + 1, accel=keep((v - c.v) / hk, accel),
                            ws=put(c.ws, end.w), levels=put(c.levels, c.level),
                            failed=failed, totals=totals,
-                           before=None if c.before is None else c.before.after(c.x, c.v, hk, accept, p, end.w))
+                           before=None if c.before is None else c.before.after(c.x, c.v, hk, accept, p, end.w),
+                           pairs=None if c.pairs is None else jax.tree_util.tree_map(keep, end.pairs, c.pairs))
 
     z = jnp.zeros((), dtype)
     trace = NewtonTrace.empty(LAST_NEWTON * integ.newton_iters, dtype) if integ.trace else None
@@ -229,7 +234,8 @@ def search(cloth, x0, v0, h, integ, rtol, prev, layout, start, tight, before, pi
                      failed=jnp.array(False),
                      totals=Totals(jnp.int32(0), jnp.int32(0), jnp.int32(0), z, z, z, z, z, jnp.array(True), trace,
                                    jnp.array(False) if cloth.self_contact else None),
-                     before=before)
+                     before=before,
+                     pairs=empty_pairs(cloth.self_contact_pairs, cloth.contact_faces, cloth.contact_edges, x0) if cloth.self_contact else None)
     return lax.while_loop(lambda c: (c.pos < 2**D) & ~c.failed & (c.tries < 2 ** (D + 1)), attempt, c0)
 
 

@@ -153,17 +153,17 @@ def draw(sc, last: PairSet, x, dx, grow) -> PairSet:
     return narrow(sc, c, x, dx)
 
 
-def empty_pairs(sc, n: int, dtype) -> PairSet:
-    """A :class:`PairSet` with no pairs, marked overflowing (a loop's first carry), for
-    ``n`` particles of ``dtype``."""
-    P = sc.capacity
-    z = jnp.zeros((P, 4), jnp.int32)
-    off = jnp.zeros((P,), bool)
+def empty_pairs(capacity: int, faces, edges, x) -> PairSet:
+    """A :class:`PairSet` with no pairs and no candidates, marked overflowing (a loop's first
+    carry): ``capacity`` slots per kind, for the triangles ``faces (F, 3)`` and their
+    ``edges (E, 2)`` over particles like ``x (N, 3)``."""
+    z = jnp.zeros((capacity, 4), jnp.int32)
+    off = jnp.zeros((capacity,), bool)
 
     def none(slots):
         zi = jnp.zeros((slots,), jnp.int32)
         return bp.Pairs(zi, zi, jnp.zeros((slots,), bool), jnp.int32(0), jnp.array(True))
 
-    inf = jnp.full((n, 3), jnp.inf, dtype)
-    c = Candidates(none(BOX_SLOTS * sc.faces.shape[0]), none(BOX_SLOTS * sc.edges.shape[0]), inf, -inf)
+    inf = jnp.full(x.shape, jnp.inf, x.dtype)
+    c = Candidates(none(BOX_SLOTS * faces.shape[0]), none(BOX_SLOTS * edges.shape[0]), inf, -inf)
     return PairSet(z, z, off, off, jnp.array(True), c)
