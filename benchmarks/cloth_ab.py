@@ -7,11 +7,12 @@ in alternating rounds (baseline, current, baseline, current, ...; best of a few 
 round), so machine noise hits both alike; the paired ratio per round is ``baseline time /
 current time`` (above 1: the current code is faster).  The end states are compared too.
 
-Cases (float64, ``benchmarks/cloth_step.py``'s scenes): A the lab cloth (CG, Cholesky,
+Cases (float64 unless said, ``benchmarks/cloth_step.py``'s scenes): A the lab cloth (CG, Cholesky,
 explicit); B 32x32 and B 128x128 (CG, on planes); C 32x32 k = 1e5 (two-level CG, planes and grid-block
 aggregates); the tablecloth mesh (CG and two-level CG: the particle layout, gathers and
 voxel aggregates; pinned at its centre and one edge); B 16x16 over a sphere (contact); two 8x8 layers over a
-sphere with self-contact; ``batch_rollout`` of 4 B 16x16 scenes; ``cloth_vbd.py``'s drape onto a
+sphere with self-contact, and two 32x32 layers in float32 (their first 20 frames: the fall and the
+landing); ``batch_rollout`` of 4 B 16x16 scenes; ``cloth_vbd.py``'s drape onto a
 sphere and a floor with friction, default ``ImplicitEuler()``: 32x32 float64 over the first 30
 frames, and 64x64 float32 over 15 frames from frame 15 (where it lies on the sphere).
 
@@ -39,13 +40,13 @@ from cloth_substeps import drape  # noqa: E402
 import jaxsim  # noqa: E402
 
 
-def layers(C, n=8):
-    """Two ``n x n`` layers 3 cm apart over a sphere, with self-contact (float64)."""
-    top = C.grid(n, 0.6 / n, origin=(-0.3, 0.63, -0.3), dtype=np.float64).rest
-    low = C.grid(n, 0.6 / n, origin=(-0.27, 0.6, -0.28), dtype=np.float64).rest
+def layers(C, n=8, dtype=np.float64):
+    """Two ``n x n`` layers 3 cm apart over a sphere, with self-contact."""
+    top = C.grid(n, 0.6 / n, origin=(-0.3, 0.63, -0.3), dtype=dtype).rest
+    low = C.grid(n, 0.6 / n, origin=(-0.27, 0.6, -0.28), dtype=dtype).rest
     V = np.concatenate([np.asarray(top), np.asarray(low)])
     T = np.concatenate([C.grid_triangles(n), C.grid_triangles(n) + (n + 1) ** 2])
-    return C.from_mesh(V, T, stiffness=300.0, density=0.3, dtype=np.float64, self_contact=True,
+    return C.from_mesh(V, T, stiffness=300.0, density=0.3, dtype=dtype, self_contact=True,
                        colliders=(C.Sphere(np.array([0.0, 0.25, 0.0]), 0.25),))
 
 
@@ -83,7 +84,8 @@ def cases(pkg):
              ("C 32x32 k=1e5 two-level", stiff, tl, 1 / 30, 5),
              ("tablecloth mesh CG", mesh, cg, 1 / 60, 10), ("tablecloth mesh two-level", mesh, tl, 1 / 60, 10),
              ("B 16x16 on a sphere", sphere, cg, 1 / 60, 10),
-             ("2 x 8x8 layers self-contact on a sphere", layers(C), C.ImplicitEuler(), 1 / 60, 20)]
+             ("2 x 8x8 layers self-contact on a sphere", layers(C), C.ImplicitEuler(), 1 / 60, 20),
+             ("2 x 32x32 layers self-contact float32", layers(C, 31, np.float32), C.ImplicitEuler(), 1 / 60, 20)]
     for name, c, integ, dt, n in table:
         s0 = C.State.at_rest(c)
         if not c.colliders:  # start from a moving, deformed state

@@ -330,3 +330,17 @@ def host_rollout_bisection(cloth, state, dt, n_steps, max_depth, plain, max_wait
 def halfway(c0, c1):
     """Colliders halfway between two poses of one structure."""
     return tuple(jax.tree_util.tree_map(lambda a, b: (a + b) / 2, c0, c1))
+
+
+def compacted(r, chunk: int):
+    """``r`` (``_rank_one.RankOne``) with its acting groups (``c != 0``) moved, in order, to
+    the first rows, zero rows after them up to a multiple of ``chunk`` rows, and their
+    ``count``: the same blocks, laid out as ``_self.terms.blocks`` lays out the pairs'."""
+    E = r.c.shape[0]
+    rows = -(-E // chunk) * chunk
+    on = r.c != 0
+    count = jnp.sum(on, dtype=jnp.int32)
+    (idx,) = jnp.nonzero(on, size=rows, fill_value=0)
+    keep = jnp.arange(rows) < count
+    return type(r)(jnp.where(keep[:, None], r.ids[idx], 0), jnp.where(keep[:, None], r.g[idx], 0),
+                   jnp.where(keep, r.c[idx], 0), count, chunk)

@@ -8,7 +8,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxsim.cloth._rank_one import RankOne, combine, compacted
+from jaxsim.cloth._rank_one import RankOne, combine
+
+from _helpers import compacted
 
 
 def _random(rng, E, k, N, acting):

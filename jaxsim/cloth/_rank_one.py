@@ -85,19 +85,6 @@ def _apply(ids, g, c, v, out):
     return out.at[ids].add((s[:, None] * g).reshape(E, k, 3))
 
 
-def compacted(r: RankOne, chunk: int) -> RankOne:
-    """``r`` with its acting groups (``c != 0``) moved, in order, to the first rows, zero rows
-    after them up to a multiple of ``chunk`` rows, and their ``count``: the same blocks."""
-    E = r.c.shape[0]
-    rows = -(-E // chunk) * chunk
-    on = r.c != 0
-    count = jnp.sum(on, dtype=jnp.int32)
-    (idx,) = jnp.nonzero(on, size=rows, fill_value=0)
-    keep = jnp.arange(rows) < count
-    return RankOne(jnp.where(keep[:, None], r.ids[idx], 0), jnp.where(keep[:, None], r.g[idx], 0),
-                   jnp.where(keep, r.c[idx], 0), count, chunk)
-
-
 def combine(a: RankOne | None, b: RankOne | None) -> RankOne | None:
     """One :class:`RankOne` holding the groups of both (``None`` where both are); the
     smaller groups are padded with particle 0 and a zero vector.  A compacted one

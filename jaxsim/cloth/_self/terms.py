@@ -171,7 +171,7 @@ def blocks(sc: SelfContact, x, free, chunk: int = PAIR_CHUNK) -> RankOne:
     (``_implicit.contact``), so the gradient stays exact and the Hessian is a PSD model
     of it.  ``g`` is ``grad d`` over the pair's four particles (0 on pins), ``c`` is
     ``w b''(d)``.  The pairs are taken ``chunk`` slots at a time up to the last pair, and
-    those whose barrier acts written first, in order (as ``_rank_one.compacted`` lays them out)."""
+    those whose barrier acts written first, in order, then zero rows (``RankOne.count``)."""
     s = current(sc, x)
     rows = -(-2 * s.pt_on.shape[0] // chunk) * chunk
 
