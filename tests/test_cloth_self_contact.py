@@ -252,18 +252,24 @@ def test_additive_ccd_is_safe_and_close():
     assert np.all(p0[hit, 1] - t[hit] * fall[hit] <= 0.2 * p0[hit, 1])
 
 
+def _layers_moving(seed, scale, down):
+    """``(cloth, SelfContact, x, dx, pairs)``: two 4x4 layers 2 mm apart at rest, a random
+    motion of ``scale`` (m) with the upper layer coming ``down`` (m), and its pairs."""
+    c = _two_layers(n=4, gap=0.002, self_contact=True)
+    sc_ = build(c, 10.0)
+    x = c.rest
+    rng = np.random.default_rng(seed)
+    dx = jnp.asarray(rng.normal(scale=scale, size=x.shape)).at[: c.num_particles // 2, 1].add(-down)
+    return c, sc_, x, dx, sp.pairs(sc_, x, dx)
+
+
 @pytest.mark.slow
 def test_step_bound_in_chunks_equals_additive_ccd_over_every_slot():
     """The line search's bound over a pair set, taken a chunk at a time up to the last pair,
     is the least of additive CCD over every slot: on the broadphase's set, on one with
     empty slots between pairs, on one whose only pair sits alone in a last, partial chunk
     (it fails if that chunk is left out), and under ``vmap``."""
-    c = _two_layers(n=4, gap=0.002, self_contact=True)
-    sc_ = build(c, 10.0)
-    x = c.rest
-    rng = np.random.default_rng(5)
-    dx = jnp.asarray(rng.normal(scale=0.004, size=x.shape)).at[: c.num_particles // 2, 1].add(-0.004)
-    s = sp.pairs(sc_, x, dx)
+    c, sc_, x, dx, s = _layers_moving(5, 0.004, 0.004)
     assert 8 < int(jnp.sum(s.pt_on)) and 8 < int(jnp.sum(s.ee_on))
 
     @jax.jit
@@ -294,12 +300,7 @@ def test_newtons_sums_over_the_slots_in_use_equal_the_definition():
     and ``blocks`` laid out in chunks equal the blocks over every slot compacted: on a set
     with empty slots between its pairs, with pinned particles, NaN-free (an empty
     edge-edge slot's mollifier is 0/0: its derivative must not reach particle 0)."""
-    c = _two_layers(n=4, gap=0.002, self_contact=True)
-    sc_ = build(c, 10.0)
-    x = c.rest
-    rng = np.random.default_rng(3)
-    dx = jnp.asarray(rng.normal(scale=0.003, size=x.shape)).at[: c.num_particles // 2, 1].add(-0.002)
-    s = sp.pairs(sc_, x, dx)
+    c, sc_, x, dx, s = _layers_moving(3, 0.003, 0.002)
     n_pt, n_ee = int(jnp.sum(s.pt_on)), int(jnp.sum(s.ee_on))
     assert n_pt > 8 and n_ee > 8
     gaps = dataclasses.replace(s, pt_on=s.pt_on.at[3].set(False), ee_on=s.ee_on.at[1].set(False).at[n_ee - 2].set(False))

@@ -55,8 +55,6 @@ def first_step(sv: NewtonSetup, w, dx, last=None):
     def shorter(c):
         a, _, k = c
         a = jnp.where(k > 1, 0.5 * a, a)
-        if last is None:
-            return a, sp.pairs(p.selfc, x, a * dx, jnp.where(k == 0, grow, 0.0)), k + 1
         return a, sp.draw(p.selfc, last, x, a * dx, jnp.where(k == 0, grow, 0.0)), k + 1
 
     a, seg, _ = lax.while_loop(lambda c: c[1].overflow & (c[2] <= SHORTER + 1), shorter,

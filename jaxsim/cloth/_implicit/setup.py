@@ -78,8 +78,7 @@ class NewtonSetup:
         sc = self.p.selfc
         if sc is None:
             return None
-        x = self.p.positions(w)
-        return sp.pairs(sc, x, grow=sp.margin(sc)) if last is None else sp.draw(sc, last, x, None, sp.margin(sc))
+        return sp.draw(sc, last, self.p.positions(w), None, sp.margin(sc))
 
     def evaluate(self, w, pairs: PairSet | None = None) -> Evaluation:
         """:class:`Evaluation` at ``w (N, 3)``: one pass over the springs.  With self-contact,

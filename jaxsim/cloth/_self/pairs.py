@@ -145,9 +145,12 @@ def pairs(sc, x, dx=None, grow=0.0) -> PairSet:
     return narrow(sc, candidates(sc, x, dx, grow), x, dx)
 
 
-def draw(sc, last: PairSet, x, dx, grow) -> PairSet:
+def draw(sc, last: PairSet | None, x, dx, grow) -> PairSet:
     """:func:`pairs` on the motion from ``x`` to ``x + dx``, from ``last``'s candidates where
-    the motion stays in their region, else from a new search grown by ``grow`` (m)."""
+    the motion stays in their region, else (or without ``last``) from a new search grown
+    by ``grow`` (m)."""
+    if last is None:
+        return pairs(sc, x, dx, grow)
     reuse = holds(last.source, x, dx)
     c = jax.lax.cond(reuse, lambda: last.source, lambda: candidates(sc, x, dx, grow))
     return narrow(sc, c, x, dx)
