@@ -95,8 +95,22 @@ def _kinds(s: PairSet, x, free):
     edge–edge (1) pairs of ``s`` at ``x``: ``moves``, the slot holds a pair with a free
     particle (a pair of pins only adds a constant); ``X``, its positions (a stand-in elsewhere)."""
     for kind, ids, on in ((0, s.pt, s.pt_on), (1, s.ee, s.ee_on)):
-        moves = on & jnp.any(free[ids, 0] > 0, axis=1)
+        moves = _moves(ids, on, free)
         yield kind, ids, moves, _stand_in(x[ids], moves)
+
+
+def _moves(ids, on, free):
+    """``(P,)`` bool: the slot holds a pair with a free particle; ``ids (P, 4)``, ``on (P,)``."""
+    return on & jnp.any(free[ids, 0] > 0, axis=1)
+
+
+def _slots(sc: SelfContact, kind: int, ids, moves, X):
+    """``(barrier (J), force sizes (P,))`` of the slots ``ids (P, 4)`` at positions ``X (P, 4,
+    3)``: the barriers summed and each pair's ``|w b'(d)|``, over the slots where ``moves``
+    (elsewhere the stand-in's, whose derivative is 0)."""
+    d, w = _pair_distance(sc, kind, _stand_in(X, moves), ids)
+    return (jnp.sum(jnp.where(moves, w * barrier(d, sc.dhat), 0.0)),
+            jnp.where(moves, -w * barrier_slope(d, sc.dhat), 0.0))
 
 
 def potential_and_forces(sc: SelfContact, x, free):
@@ -111,10 +125,9 @@ def potential_and_forces(sc: SelfContact, x, free):
     s = current(sc, x)
     total = jnp.zeros((), x.dtype)
     out = jnp.zeros(x.shape[:1], x.dtype)
-    for kind, ids, moves, X in _kinds(s, x, free):
-        d, w = _pair_distance(sc, kind, X, ids)
-        total = total + jnp.sum(jnp.where(moves, w * barrier(d, sc.dhat), 0.0))
-        f = jnp.where(moves, -w * barrier_slope(d, sc.dhat), 0.0)
+    for kind, ids, on in ((0, s.pt, s.pt_on), (1, s.ee, s.ee_on)):
+        e, f = _slots(sc, kind, ids, _moves(ids, on, free), x[ids])
+        total = total + e
         out = out.at[ids].add(jnp.broadcast_to(f[:, None], ids.shape))
     return total, out * free[:, 0]
 
@@ -146,14 +159,8 @@ def summed(sc: SelfContact, x, free, chunk: int = PAIR_CHUNK):
 
     def body(kind, ids, on, c):
         total, grad, out = c
-        moves = on & jnp.any(free[ids, 0] > 0, axis=1)
-
-        def energy(X):  # (through the stand-in, whose derivative is 0 on empty slots)
-            d, w = _pair_distance(sc, kind, _stand_in(X, moves), ids)
-            return jnp.sum(jnp.where(moves, w * barrier(d, sc.dhat), 0.0)), (d, w)
-
-        (e, (d, w)), g = jax.value_and_grad(energy, has_aux=True)(x[ids])
-        f = jnp.where(moves, -w * barrier_slope(d, sc.dhat), 0.0)
+        moves = _moves(ids, on, free)
+        (e, f), g = jax.value_and_grad(lambda X: _slots(sc, kind, ids, moves, X), has_aux=True)(x[ids])
         return total + e, grad.at[ids].add(g), out.at[ids].add(jnp.broadcast_to(f[:, None], ids.shape))
 
     z = jnp.zeros(x.shape[:1], x.dtype)
@@ -177,7 +184,7 @@ def blocks(sc: SelfContact, x, free, chunk: int = PAIR_CHUNK) -> RankOne:
 
     def body(kind, ids, on, c):
         outs, count = c
-        moves = on & jnp.any(free[ids, 0] > 0, axis=1)
+        moves = _moves(ids, on, free)
         X = _stand_in(x[ids], moves)
         (d, w), g = _pair_distance(sc, kind, X, ids), jax.grad(lambda Y: jnp.sum(_pair_distance(sc, kind, Y, ids)[0]))(X)
         cc = jnp.where(moves, w * jnp.maximum(_d(barrier, 2)(d, sc.dhat), 0.0), 0.0)
