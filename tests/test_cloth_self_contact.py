@@ -135,14 +135,14 @@ def _pair_list(found):
     return sorted(zip(np.asarray(found.a)[on].tolist(), np.asarray(found.b)[on].tolist()))
 
 
-@pytest.mark.parametrize("packed_bits", [bp.PACKED_ID_BITS, 0])
+@pytest.mark.parametrize("packed_bits", [bp.PACKED_BITS, 0])
 @pytest.mark.parametrize("hashed", ["xla", "two buckets"])
 def test_broadphase_reports_each_pair_once(monkeypatch, packed_bits, hashed):
-    """Both cell tables (box ids packed under the hash's bits, and the sort of two arrays for
-    larger sets), with the real hash and with one under which most cells collide: the found
-    list, with multiplicity, is the brute-force one (a box whose cells share a key is entered
-    once)."""
-    monkeypatch.setattr(bp, "PACKED_ID_BITS", packed_bits)
+    """Both cell tables (bucket and box id packed in one sorted word, and a stable argsort for
+    larger sets), with the real hash and with one under which most cells share a bucket: the
+    found list, with multiplicity, is the brute-force one (a match counts only in the entry's
+    home cell, and within one set each unordered pair is met from one side only)."""
+    monkeypatch.setattr(bp, "PACKED_BITS", packed_bits)
     if hashed != "xla":
         monkeypatch.setattr(bp, "_hash", lambda cell: (jnp.sum(cell, axis=-1) % 2).astype(jnp.int32))
     rng = np.random.default_rng(7)
@@ -160,7 +160,7 @@ def test_broadphase_reports_each_pair_once(monkeypatch, packed_bits, hashed):
     assert _pair_list(same) == sorted((int(i), int(j)) for i, j in zip(*np.nonzero(ref)) if i < j)
 
 
-@pytest.mark.parametrize("packed_bits", [bp.PACKED_ID_BITS, 0])
+@pytest.mark.parametrize("packed_bits", [bp.PACKED_BITS, 0])
 def test_broadphase_in_small_chunks_and_the_narrow_phase(monkeypatch, packed_bits):
     """The search walked 16 matches at a time (many passes of its loop) finds the
     brute-force pairs in the order of one pass; ``kept`` keeps those a test passes, in
@@ -168,7 +168,7 @@ def test_broadphase_in_small_chunks_and_the_narrow_phase(monkeypatch, packed_bit
     rng = np.random.default_rng(11)
     lo_a, hi_a = _boxes(rng, 120, 0.15)
     lo_b, hi_b = _boxes(rng, 90, 0.15)
-    monkeypatch.setattr(bp, "PACKED_ID_BITS", packed_bits)
+    monkeypatch.setattr(bp, "PACKED_BITS", packed_bits)
     f = jax.jit(lambda *a, **k: bp.overlapping(*a, **k), static_argnames=("capacity", "same"))
     whole = [f(lo_a, hi_a, lo_b, hi_b, capacity=4000), f(lo_a, hi_a, lo_a, hi_a, capacity=4000, same=True)]
     monkeypatch.setattr(bp, "CHUNK", 16)
@@ -250,6 +250,16 @@ def test_additive_ccd_is_safe_and_close():
     # the pair stops at no less than 10% of its distance, and not far before that
     assert np.all(p0[hit, 1] - t[hit] * fall[hit] >= 0.1 * p0[hit, 1] * (1 - 1e-12))
     assert np.all(p0[hit, 1] - t[hit] * fall[hit] <= 0.2 * p0[hit, 1])
+
+
+@pytest.mark.parametrize("split", [1, 2])
+def test_additive_ccds_reach_is_each_primitives_largest_relative_motion(split):
+    """ACCD's ``l_p`` against NumPy: the largest vertex displacement of each primitive, the
+    pair's mean displacement removed, summed over the two primitives."""
+    D = np.random.default_rng(5).normal(size=(50, 4, 3))
+    n = np.linalg.norm(D - D.mean(axis=1, keepdims=True), axis=-1)
+    want = n[:, :split].max(axis=1) + n[:, split:].max(axis=1)
+    np.testing.assert_allclose(np.asarray(ccd.reach(jnp.asarray(D), split)), want, rtol=1e-6)
 
 
 def _layers_moving(seed, scale, down):

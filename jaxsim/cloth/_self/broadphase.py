@@ -1,15 +1,18 @@
-"""Pairs of overlapping boxes by a sorted uniform grid, at a fixed capacity, under ``jit``.
+"""Pairs of overlapping boxes by a hashed uniform grid, at a fixed capacity, under ``jit``.
 
-The cell side is the largest box extent of either set, so a box covers at most 2 x 2 x 2
-cells.  The second set's boxes are entered once per covered cell and sorted by a hash of
-the cell (packed with the box's id into one word); each box of the first set looks up its
-own cells by binary search (within one set, only the boxes after its own: a run is sorted
-by box id).  A pair of overlapping boxes is reported from one cell only: the one holding
-the corner ``max(lo_a, lo_b)``, which both boxes cover.  The ragged lists of matches are
-walked ``CHUNK`` at a time, up to the last match (a loop with a traced trip count: the
-work follows the matches, not the budget), and the pairs are laid out in ``capacity``
-slots in order; a run with more pairs than slots, or more matches than the budget, says
-so in ``overflow`` and never drops a pair silently.
+The cell side is the largest box extent of either set (times ``1 + SLACK``).  Each box of
+the second set is entered once, in its *home* cell (the one holding its lowest corner
+``lo``); the table is one sort of the boxes by their home's bucket (a hash of the cell)
+and the buckets' runs.  Two boxes that overlap have homes at most one cell apart on each
+axis, so a box of the first set looks in at most the 3 x 3 x 3 cells around its home, and
+only in those its own box reaches (``cell(hi)``); within one set, only in its home and the
+13 neighbours of one half-space (each unordered pair is met once; MD's half-shell cell
+list).  A match counts only where the entry's home is the cell looked in (strangers in a
+bucket are dropped), so a pair is reported once, with no duplicate test.  The ragged lists
+of matches are walked ``CHUNK`` at a time, up to the last match (a loop with a traced trip
+count: the work follows the matches, not the budget), and the pairs are laid out in
+``capacity`` slots in order; a run with more pairs than slots, or more matches than the
+budget, says so in ``overflow`` and never drops a pair silently.
 """
 
 from __future__ import annotations
@@ -22,19 +25,30 @@ from jax import lax
 from ..._dataclass import pytree_dataclass
 
 #: Matches looked at per slot, at most (a bound on the search's work, which follows the
-#: matches found): a box covers about 4 cells of a cloth's grid, each holding about 10
-#: boxes, so matches outnumber the overlapping pairs about 25 to 1 (two 8x8 layers,
-#: ``benchmarks/cloth_self_contact.py``; half that within one set).  Two layers closer
-#: than a cell share cells, and a motion across a cell's face doubles a box's cells: with 8
-#: the edge-edge search of two 32x32 layers 3 cm apart overflowed on a 5 mm fall
-#: (docs/notebook.md, "the 32x32 layers fail"); 12 was enough there up to 2 cm.
+#: matches found): two 32x32 layers on a sphere (``benchmarks/cloth_self_contact.py``)
+#: look at about 10 matches per point-triangle pair and 8 per edge-edge pair (docs/notebook.md,
+#: "the home-cell grid"); a motion across a cell's face, or two layers closer than a cell,
+#: raise it.
 RAW_PER_SLOT = 16
 
 #: Matches looked at per pass of the search's loop (and pairs per pass of :func:`kept`).
 CHUNK = 8192
 
-#: Offsets of the 2 x 2 x 2 cells a box may cover, from its lowest cell.
-_CORNERS = jnp.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)], jnp.int32)
+#: The cell side is the largest extent times ``1 + SLACK``: two overlapping boxes' homes
+#: stay within one cell of each other on each axis through the rounding of ``x / side``
+#: (up to about ``SLACK / eps`` cells from the origin).
+SLACK = 1e-3
+
+#: A table of at most this many bits of ``bucket * B + box`` is sorted as one ``uint32``
+#: word, which XLA:CPU sorts several times faster than keys with ids carried
+#: (docs/notebook.md, "the broadphase"); larger tables use a stable ``argsort``.
+PACKED_BITS = 32
+
+#: Home offsets a box of the first set looks in: all 27, and within one set the home
+#: itself (first) and the 13 whose first nonzero component is positive.
+_ALL = np.array([[i, j, k] for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)], np.int32)
+_HALF = np.array([d for d in _ALL if not d.any()] + [d for d in _ALL if d.any() and d[np.flatnonzero(d)[0]] > 0],
+                 np.int32)
 
 
 @pytree_dataclass
@@ -63,58 +77,33 @@ def _hash(cell):
     return lax.bitcast_convert_type(h, jnp.int32)
 
 
-#: Box ids of up to this many bits share one sorted 32-bit word with the cell's hash (its
-#: high bits), so the table is a sort of one array, which XLA:CPU sorts several times
-#: faster than two arrays sorted together (docs/notebook.md, "the broadphase").
-PACKED_ID_BITS = 16
+def _bucket(cell, bits: int):
+    """``(...,)`` uint32 bucket in ``[0, 2^bits)`` of ``(..., 3)`` int32 cells: the high bits of
+    the hash times Knuth's multiplicative constant."""
+    h = lax.bitcast_convert_type(_hash(cell), jnp.uint32) * jnp.uint32(2654435761)
+    return h >> (32 - bits)
 
 
-def _once(key, used):
-    """``(B, 8)`` bool: ``used``, less the entries whose key an earlier entry of the same box
-    has (so a box is found at most once in a run: one pair is never reported twice)."""
-    earlier = np.tri(8, k=-1, dtype=bool)  # [i, j]: j < i
-    dup = (key[:, :, None] == key[:, None, :]) & used[:, None, :] & earlier
-    return used & ~jnp.any(dup, axis=2)
-
-
-def _cell_table(hash_b, used_b, keys_a, after=None):
-    """The second set's cell entries sorted by key, and each query's run of them.
+def _table(home):
+    """The boxes sorted by their home cell's bucket, and each bucket's run.
 
     Args:
-      hash_b: ``(B, 8)`` int32 hashes of the cells each box may cover; used_b: ``(B, 8)`` bool.
-      keys_a: ``(Q,)`` int32 hashes of the queried cells.
-      after: ``(Q,)`` int32 or ``None``: a query's run holds only boxes with ids from this
-        one on (the packed table only: its runs are sorted by box id; elsewhere ignored).
+      home: ``(B, 3)`` int32 home cells.
 
     Returns:
-      ``(keys, box, start, stop)``: ``(8B,)`` sorted keys and their boxes (unused entries
-      last), and ``(Q,)`` int32 the run ``[start, stop)`` of each query's key.  With at most
-      ``PACKED_ID_BITS`` bits of box id, a key is the hash's high bits (a bucket: cells whose
-      hashes share them share a run, and the overlap test drops the strangers) over the box id.
+      ``(box (B,) int32, start (T,) int32, count (T,) int32, bits)``: box ids in bucket order
+      (by id within a bucket), and bucket ``k``'s run ``box[start[k] : start[k] + count[k]]``,
+      for ``T = 2^bits >= 2 B`` buckets.
     """
-    B = hash_b.shape[0]
-    box = jnp.broadcast_to(jnp.arange(B, dtype=jnp.int32)[:, None], (B, 8))
-    bits = max(1, (B - 1).bit_length())
-    if bits > PACKED_ID_BITS:
-        keys = jnp.where(_once(hash_b, used_b), hash_b, jnp.iinfo(jnp.int32).max).reshape(-1)
-        order = jnp.argsort(keys)
-        keys, box = keys[order], box.reshape(-1)[order]
-        start = jnp.searchsorted(keys, keys_a, side="left").astype(jnp.int32)
-        stop = jnp.searchsorted(keys, keys_a, side="right").astype(jnp.int32)
-        return keys, box, start, stop
-    top = jnp.uint32((1 << (32 - bits)) - 2)  # the last bucket marks unused entries
-
-    def bucket(h):
-        return jnp.minimum(lax.bitcast_convert_type(h, jnp.uint32) >> bits, top)
-
-    kb = bucket(hash_b)
-    packed = jnp.where(_once(kb, used_b), (kb << bits) | box.astype(jnp.uint32), jnp.uint32(0xFFFFFFFF))
-    packed = jnp.sort(packed.reshape(-1))
-    lo = bucket(keys_a) << bits
-    first = lo if after is None else lo + after.astype(jnp.uint32)  # at most the next bucket's start
-    start = jnp.searchsorted(packed, first, side="left").astype(jnp.int32)
-    stop = jnp.searchsorted(packed, lo + jnp.uint32(1 << bits), side="left").astype(jnp.int32)
-    return packed, (packed & jnp.uint32((1 << bits) - 1)).astype(jnp.int32), start, stop
+    B = home.shape[0]
+    bits = max(1, (2 * B - 1).bit_length())
+    kb = _bucket(home, bits)
+    if (B << bits) - 1 < 2 ** min(PACKED_BITS, 32):  # bucket * B + box fits one word
+        box = (jnp.sort(kb * jnp.uint32(B) + jnp.arange(B, dtype=jnp.uint32)) % jnp.uint32(B)).astype(jnp.int32)
+    else:
+        box = jnp.argsort(kb, stable=True).astype(jnp.int32)
+    count = jnp.zeros(1 << bits, jnp.int32).at[kb].add(1)
+    return box, jnp.cumsum(count) - count, count, bits
 
 
 def overlapping(lo_a, hi_a, lo_b, hi_b, capacity: int, ids_a=None, ids_b=None, same: bool = False) -> Pairs:
@@ -132,46 +121,51 @@ def overlapping(lo_a, hi_a, lo_b, hi_b, capacity: int, ids_a=None, ids_b=None, s
       :class:`Pairs`, with the found pairs first.
     """
     ext = jnp.maximum(jnp.max(hi_a - lo_a), jnp.max(hi_b - lo_b))
-    size = jnp.maximum(ext, jnp.finfo(lo_a.dtype).tiny) * (1 + 1e-6)
+    size = jnp.maximum(ext, jnp.finfo(lo_a.dtype).tiny) * (1 + SLACK)
     cell_of = lambda x: jnp.floor(x / size).astype(jnp.int32)  # noqa: E731
-    # the second set, once per covered cell (at most 8), sorted by the cell's key
-    first_b, last_b = cell_of(lo_b), cell_of(hi_b)
-    cells_b = first_b[:, None, :] + _CORNERS[None]
-    used_b = jnp.all(cells_b <= last_b[:, None, :], axis=-1)
-    first_a, last_a = cell_of(lo_a), cell_of(hi_a)
-    cells_a = (first_a[:, None, :] + _CORNERS[None]).reshape(-1, 3)
-    used_a = jnp.all(cells_a <= jnp.repeat(last_a, 8, axis=0), axis=-1)
-    # one set: a query's run starts after its own box (the packed runs are sorted by box id)
-    after = jnp.arange(cells_a.shape[0], dtype=jnp.int32) // 8 + 1 if same else None
-    keys_b, box_b, start, stop = _cell_table(_hash(cells_b), used_b, _hash(cells_a), after)
+    home_b = cell_of(lo_b)
+    box_b, run_start, run_count, bits = _table(home_b)
+    # each box of the first set looks in the homes around its own that its box reaches
+    offs = jnp.asarray(_HALF if same else _ALL)
+    home_a = cell_of(lo_a)
+    reach = cell_of(hi_a) - home_a
+    cells = home_a[:, None, :] + offs[None]  # (A, K, 3)
+    used = jnp.all(offs[None] <= reach[:, None, :], axis=-1)
+    K = offs.shape[0]
+    cells = cells.reshape(-1, 3)
+    bk = _bucket(cells, bits)
+    n = jnp.where(used.reshape(-1), run_count[bk], 0)
+    first = run_start[bk]
     # the queries with matches, in order: their runs' ends rise strictly
-    n = jnp.where(used_a, jnp.maximum(stop - start, 0), 0)
-    (qs,) = jnp.nonzero(n > 0, size=n.shape[0], fill_value=n.shape[0] - 1)
+    Q = n.shape[0]
+    (qs,) = jnp.nonzero(n > 0, size=Q, fill_value=Q - 1)
     qs = qs.astype(jnp.int32)
-    nq = jnp.where(jnp.arange(n.shape[0]) < jnp.sum(n > 0), n[qs], 0)
+    nq = jnp.where(jnp.arange(Q) < jnp.sum(n > 0), n[qs], 0)
     ends = jnp.cumsum(nq)
     total = ends[-1]
     raw = RAW_PER_SLOT * capacity  # matches looked at, at most
     rows = jnp.arange(CHUNK, dtype=jnp.int32)
+    # each chunk's first query, ``#{i: ends[i] <= start}``; a chunk's slots belong to at most
+    # ``CHUNK`` queries from there (each holds a match)
+    heads = jnp.searchsorted(ends, jnp.arange(-(-raw // CHUNK), dtype=ends.dtype) * CHUNK, side="right")
+    ends_p = jnp.concatenate([ends, jnp.full(CHUNK, jnp.iinfo(ends.dtype).max, ends.dtype)])
 
     def chunk(i, carry):
         out_a, out_b, count = carry
         s0 = i * CHUNK
         slot = s0 + rows
-        # each slot's query ``#{i: ends[i] <= slot}``: the queries before the chunk, and a
-        # prefix sum of the chunk's ends (a binary search per slot costs more)
-        local = jnp.where(ends >= s0, ends - s0, CHUNK)
-        j = jnp.sum(ends < s0) + jnp.cumsum(jnp.zeros(CHUNK, jnp.int32).at[local].add(1, mode="drop"))
-        j = jnp.minimum(j, ends.shape[0] - 1)
+        j0 = heads[i].astype(jnp.int32)
+        # each slot's query ``j0 + #{k: ends[j0 + k] <= slot}``: a prefix sum over the window
+        local = jnp.minimum(lax.dynamic_slice_in_dim(ends_p, j0, CHUNK) - s0, CHUNK)
+        j = jnp.minimum(j0 + jnp.cumsum(jnp.zeros(CHUNK, jnp.int32).at[local].add(1, mode="drop")), Q - 1)
         q = qs[j]
-        k = start[q] + slot - (ends[j] - nq[j])
-        a = q // 8
-        b = box_b[jnp.clip(k, 0, keys_b.shape[0] - 1)]
-        corner = cell_of(jnp.maximum(lo_a[a], lo_b[b]))
-        hit = (slot < jnp.minimum(total, raw)) & jnp.all(corner == cells_a[q], axis=-1)
+        b = box_b[jnp.clip(first[q] + slot - (ends[j] - nq[j]), 0, box_b.shape[0] - 1)]
+        a = q // K
+        hit = (slot < jnp.minimum(total, raw)) & jnp.all(home_b[b] == cells[q], axis=-1)
         hit = hit & jnp.all((lo_a[a] <= hi_b[b]) & (lo_b[b] <= hi_a[a]), axis=-1)
-        if same:  # (the unpacked table's runs hold every box)
-            hit = hit & (a < b)
+        if same:  # the home's own run holds the box itself and each pair in it twice
+            hit = hit & ((q % K != 0) | (a < b))
+            a, b = jnp.minimum(a, b), jnp.maximum(a, b)
         if ids_a is not None:
             hit = hit & ~jnp.any(ids_a[a][:, :, None] == ids_b[b][:, None, :], axis=(1, 2))
         (out_a, out_b), count = append((out_a, out_b), (a, b), hit, count)
@@ -180,7 +174,8 @@ def overlapping(lo_a, hi_a, lo_b, hi_b, capacity: int, ids_a=None, ids_b=None, s
     z = jnp.zeros(capacity, jnp.int32)
     # only the chunks that hold matches: the work follows the matches, not the budget
     a, b, count = lax.fori_loop(0, (jnp.minimum(total, raw) + CHUNK - 1) // CHUNK, chunk, (z, z, jnp.int32(0)))
-    return Pairs(a, b, jnp.arange(capacity) < count, count, (count > capacity) | (total > raw))
+    wide = jnp.any(reach > 1)  # a box wider than a cell (rounding): its homes are not all looked in
+    return Pairs(a, b, jnp.arange(capacity) < count, count, (count > capacity) | (total > raw) | wide)
 
 
 def append(outs, rows, hit, count):

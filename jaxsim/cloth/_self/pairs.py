@@ -15,6 +15,8 @@ IPC, Li et al. 2020, §5, searches on every line search).
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 
@@ -98,8 +100,10 @@ def candidates(sc, x, dx=None, grow=0.0) -> Candidates:
     pad = 0.5 * sc.dhat
     pts = jnp.arange(x.shape[0], dtype=jnp.int32)[:, None]
 
-    def boxes(ids):
-        return jnp.min(lo[ids], axis=1) - pad, jnp.max(hi[ids], axis=1) + pad
+    def boxes(ids):  # (the corners per column: XLA:CPU ran a min over the axis of 2-3 as a library call)
+        cols = range(ids.shape[1])
+        return (functools.reduce(jnp.minimum, (lo[ids[:, k]] for k in cols)) - pad,
+                functools.reduce(jnp.maximum, (hi[ids[:, k]] for k in cols)) + pad)
 
     (lo_p, hi_p), (lo_f, hi_f), (lo_e, hi_e) = boxes(pts), boxes(F), boxes(E)
     pt = bp.overlapping(lo_p, hi_p, lo_f, hi_f, BOX_SLOTS * F.shape[0], pts, F)
