@@ -36,8 +36,8 @@ REGION = 1.0
 
 #: A grown region also reaches this many motions further along the motion it was searched
 #: for: Newton's next steps tend to go on the same way.  Two 32x32 layers' 30-step drop
-#: searched 467 times in 2,606 Newton iterations in float64 without it, 310 with 1 (and
-#: 398 against 236 in float32 with 3; docs/notebook.md, "the home-cell grid").
+#: searched 467 times in about 2,600 Newton iterations in float64 without it, 310 with 1
+#: and 238 with 3 (float32: 398 and 242; docs/notebook.md, "the home-cell grid").
 AHEAD = 3.0
 
 
