@@ -40,6 +40,8 @@ import jax  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
+pytest_plugins = ["_compile_stats"]
+
 jax.jit(lambda x: x + 1)(0).block_until_ready()
 if _XLA_FLAGS is None:
     del os.environ["XLA_FLAGS"]
