@@ -63,9 +63,9 @@ def main():
         n = np.linalg.norm(out, axis=-1, keepdims=True)
         poles[m] = jnp.asarray(pm + 0.3 * out / np.maximum(n, 1e-9), jnp.float32)
     lm, lm8 = ik.LevenbergMarquardt(100, 1e-4), ik.LevenbergMarquardt(100, 1e-4, seeds=8)
-    fns = {"without poles": jax.jit(lambda t: ik.solve(H, t, solver=lm, effectors=eff, early_exit=True)),
-           "with poles": jax.jit(lambda t, p: ik.solve(H, t, solver=lm, effectors=eff, early_exit=True, poles=p)),
-           "with poles, seeds=8": jax.jit(lambda t, p: ik.solve(H, t, solver=lm8, effectors=eff, early_exit=True,
+    fns = {"without poles": jax.jit(lambda t: ik.solve(H, t, solver=lm, effectors=eff)),
+           "with poles": jax.jit(lambda t, p: ik.solve(H, t, solver=lm, effectors=eff, poles=p)),
+           "with poles, seeds=8": jax.jit(lambda t, p: ik.solve(H, t, solver=lm8, effectors=eff,
                                                                 poles=p))}
     call = {"without poles": lambda: fns["without poles"](T), "with poles": lambda: fns["with poles"](T, poles),
             "with poles, seeds=8": lambda: fns["with poles, seeds=8"](T, poles)}

@@ -110,8 +110,7 @@ def main():
         rng = np.random.default_rng(5)
         R = ik.project_limits(sk, random_poses(rng, (args.n, sk.num_joints)))
         T = jnp.asarray(np.asarray(ik.fk(sk, R).positions)[:, eff], jnp.float32)
-        ours = jax.jit(lambda t, sk=sk: ik.solve(sk, t, solver=ik.LevenbergMarquardt(100, 1e-4), effectors=eff,
-                                                   early_exit=True))
+        ours = jax.jit(lambda t, sk=sk: ik.solve(sk, t, solver=ik.LevenbergMarquardt(100, 1e-4), effectors=eff))
         timing = time_call(ours, T, repeats=5)
         res = ours(T)
         viol = float(jnp.max(ik.limit_violation(sk, res.rotations))) if limited else 0.0

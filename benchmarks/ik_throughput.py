@@ -31,6 +31,11 @@ from _common import time_call, time_plain, write  # noqa: E402
 from jaxsim import ik  # noqa: E402
 
 
+
+def ik_settings(name, **kw):
+    """``ik.FABRIK(**kw)`` or ``ik.CCD(**kw)`` by name."""
+    return {"fabrik": ik.FABRIK, "ccd": ik.CCD}[name](**kw)
+
 def numpy_fabrik(offsets, targets, iters):
     """Plain numpy FABRIK vectorised over targets (no convergence test): ``(B, J, 3)``."""
     lengths = np.linalg.norm(offsets[1:], axis=-1).astype(targets.dtype)
@@ -76,7 +81,7 @@ def humanoid_case(record, n_sets=10_000):
     T = jnp.asarray(np.asarray(ik.fk(H32, random_poses(rng, (n_sets, H32.num_joints))).positions)[:, eff], jnp.float32)
     for solver in ("fabrik", "ccd"):
         for mode, kw in (("10 sweeps", dict(max_iters=10, tol=0.0)),
-                         ("tol 1e-4", dict(max_iters=100, tol=1e-4, early_exit=True))):
+                         ("tol 1e-4", dict(max_iters=100, tol=1e-4))):
             fn = jax.jit(lambda t, kw=kw, solver=solver: ik.solve(H32, t, solver=solver, effectors=eff, **kw))
             timing = time_call(fn, T, repeats=3)
             res = fn(T)
@@ -116,8 +121,7 @@ def limits_case(record, n_sets=1000):
                                 ("lm_seeds4", H, ik.LevenbergMarquardt(100, 1e-4, seeds=4)),
                                 ("lm_seeds8", H, ik.LevenbergMarquardt(100, 1e-4, seeds=8)),
                                 ("lm_free", ik.humanoid(np.float32, limits=False), lm)):
-        fn = jax.jit(lambda t, model=model, solver=solver: ik.solve(model, t, solver=solver, effectors=eff,
-                                                                    early_exit=True))
+        fn = jax.jit(lambda t, model=model, solver=solver: ik.solve(model, t, solver=solver, effectors=eff))
         timing = time_call(fn, T, repeats=5)  # every solver on the same sets
         res = fn(T)
         conv = np.asarray(res.converged)
@@ -165,7 +169,7 @@ def hinge_chain_case(record, n=200, axes=None, lengths=None, ranges=None, name="
     prec = "float64" if x64 else "float32"
     for solver in ("fabrik", "ccd", "lm"):
         fn = jax.jit(lambda t, solver=solver: ik.solve(sk, t[:, None], solver=solver, effectors=(H,), max_iters=100,
-                                                       tol=1e-4, early_exit=True))
+                                                       tol=1e-4))
         timing = time_call(fn, T, repeats=2)
         res = fn(T)
         row = record(f"{name} {solver} tol 1e-4 {prec}", f"{name} {solver}", "tol 1e-4", timing, n,
@@ -261,7 +265,7 @@ def main():
         for mode, kw in (("10 sweeps", dict(max_iters=10, tol=0.0)), ("tol 1e-4", dict(max_iters=100, tol=1e-4))):
             for unroll, early in ((True, False), (False, False), (True, True)):
                 fn = jax.jit(lambda t, kw=kw, unroll=unroll, early=early: ik.solve(
-                    chain, t[:, None], solver=solver, unroll=unroll, early_exit=early, **kw))
+                    chain, t[:, None], solver=ik_settings(solver, unroll=unroll, early_exit=early, **kw)))
                 timing = time_call(fn, targets)
                 res = fn(targets)
                 hlo = fn.lower(targets).compile().as_text()  # optimised HLO: fusions in the whole solve

@@ -5,6 +5,7 @@ The arguments are parsed before JAX is imported, so --help and typos answer at o
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import sys
 
@@ -17,11 +18,14 @@ def main(argv=None) -> int:
     p.add_argument("--fast", action="store_true", help="shorter runs of the same scenes (about 1.5 minutes on 2 cores "
                    "with an empty compilation cache)")
     p.add_argument("--force", action="store_true", help="write into --out even if it holds files demo did not write")
+    p.add_argument("--no-cache", action="store_true", help="do not use JAX's persistent compilation cache "
+                   "(default: on, in $JAX_COMPILATION_CACHE_DIR or ~/.cache/jaxsim/jax)")
     p = sub.add_parser("report", help="write the error-vs-time and stability report")
     p.add_argument("--out", default="jaxsim-report", help="output folder (default: ./jaxsim-report)")
     p.add_argument("--quick", action="store_true", help="small sizes, sections in two processes (about 3 "
                    "minutes on 2 cores with an empty compilation cache)")
     p.add_argument("--force", action="store_true", help="write into --out even if it holds files report did not write")
+    p.add_argument("--no-cache", action="store_true", help="do not use JAX's persistent compilation cache")
     p = sub.add_parser("bench", help="run the package's benchmark scripts (source checkout)")
     p.add_argument("names", nargs="*", help="benchmarks to run (none: list them with their last durations)")
     p.add_argument("--all", action="store_true", help="run every benchmark (tens of minutes)")
@@ -34,7 +38,7 @@ def main(argv=None) -> int:
 
             return run(args.names, run_all=args.all)
         from ._cli import _out
-        from ._cli.cache import enable_compilation_cache
+        from ._jobs.cache import enable_compilation_cache
 
         before = _out.prepare(args.out, args.command, args.force)  # before any work
         interrupted = []
@@ -56,6 +60,8 @@ def main(argv=None) -> int:
         default_unraisable, sys.unraisablehook = sys.unraisablehook, quiet_unraisable
         default_sigint = signal.signal(signal.SIGINT, on_sigint)
         try:
+            if args.no_cache:  # also for the report's worker processes
+                os.environ["JAXSIM_NO_CACHE"] = "1"
             enable_compilation_cache()
             from . import retain_host_memory
 

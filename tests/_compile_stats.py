@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import json
 import os
-import time
 
 import jax
 
@@ -25,6 +24,9 @@ HIT = "/jax/compilation_cache/cache_hits"
 
 _totals: dict[str, list[float]] = {name: [0, 0.0] for name in EVENTS.values()}
 _totals["cache_hits"] = [0, 0.0]
+#: Backend compiles and their seconds per test file (for finding where the compile work is).
+_per_file: dict[str, list[float]] = {}
+_current = ["(collection)"]
 
 
 def _on_duration(event: str, secs: float, **_kw) -> None:
@@ -32,6 +34,10 @@ def _on_duration(event: str, secs: float, **_kw) -> None:
     if name is not None:
         _totals[name][0] += 1
         _totals[name][1] += secs
+        if name == "compiles":
+            row = _per_file.setdefault(_current[0], [0, 0.0])
+            row[0] += 1
+            row[1] += secs
 
 
 def _on_event(event: str, **_kw) -> None:
@@ -41,21 +47,29 @@ def _on_event(event: str, **_kw) -> None:
 
 jax.monitoring.register_event_duration_secs_listener(_on_duration)
 jax.monitoring.register_event_listener(_on_event)
-_START = time.perf_counter()
+
+
+def pytest_runtest_setup(item):
+    _current[0] = os.path.basename(str(item.fspath))
 
 
 def pytest_sessionfinish(session, exitstatus):
     workeroutput = getattr(session.config, "workeroutput", None)
     if workeroutput is not None:  # an xdist worker: hand the totals to the controller
-        workeroutput["jaxsim_compile_stats"] = json.dumps(_totals)
+        workeroutput["jaxsim_compile_stats"] = json.dumps({"totals": _totals, "files": _per_file})
 
 
 def pytest_testnodedown(node, error):
     out = getattr(node, "workeroutput", {}).get("jaxsim_compile_stats")
     if out:
-        for name, (n, secs) in json.loads(out).items():
+        out = json.loads(out)
+        for name, (n, secs) in out["totals"].items():
             _totals[name][0] += n
             _totals[name][1] += secs
+        for name, (n, secs) in out["files"].items():
+            row = _per_file.setdefault(name, [0, 0.0])
+            row[0] += n
+            row[1] += secs
 
 
 def pytest_terminal_summary(terminalreporter, exitstatus, config):
@@ -63,11 +77,13 @@ def pytest_terminal_summary(terminalreporter, exitstatus, config):
     line = (f"XLA compile work (all workers): {t['compiles'][0]} backend compiles in "
             f"{t['compiles'][1]:.1f} s ({t['cache_hits'][0]} of them persistent-cache hits), "
             f"{t['traces'][0]} traces in {t['traces'][1]:.1f} s, "
-            f"{t['lowerings'][0]} lowerings in {t['lowerings'][1]:.1f} s; "
-            f"session wall {time.perf_counter() - _START:.0f} s")
+            f"{t['lowerings'][0]} lowerings in {t['lowerings'][1]:.1f} s")
     terminalreporter.write_sep("-", "compile stats")
     terminalreporter.write_line(line)
     path = os.environ.get("JAXSIM_COMPILE_STATS")
     if path:
+        files = {k: {"compiles": v[0], "seconds": round(v[1], 2)}
+                 for k, v in sorted(_per_file.items(), key=lambda kv: -kv[1][1])}
         with open(path, "w") as f:
-            json.dump({k: {"count": v[0], "seconds": round(v[1], 2)} for k, v in t.items()}, f, indent=1)
+            json.dump({"totals": {k: {"count": v[0], "seconds": round(v[1], 2)} for k, v in t.items()},
+                       "files": files}, f, indent=1)

@@ -17,6 +17,9 @@ from jaxsim._report._humanoid import random_poses
 from jaxsim.cloth import _step
 from jaxsim.cloth._layout import layout_of
 
+#: IK settings objects by the solver's short name.
+SETTINGS = {"fabrik": ik.FABRIK, "ccd": ik.CCD, "lm": ik.LevenbergMarquardt}
+
 #: Tolerances per dtype for quantities of order one.
 TOL = {np.dtype(np.float32): 1e-5, np.dtype(np.float64): 1e-10}
 

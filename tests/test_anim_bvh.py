@@ -251,3 +251,81 @@ def test_positions_jit_vmap_and_gradients(tmp_path):
         return jnp.sum(anim.positions(mm)[:, -1] ** 2)
 
     check_grads(end, (m.skeleton.offsets, m.rotations, m.root_positions), order=1, modes=("rev",))
+
+
+@pytest.mark.parametrize("frame_time", [1e-8, 1.5e-7, 1 / 120, 0.0333, 1 / 3])
+def test_the_frame_time_round_trips_exactly(tmp_path, frame_time):
+    """``Frame Time`` is written with enough digits for an exact float round trip (seven
+    decimals wrote 1e-8 as 0.0000000, which the reader refuses, and 1.5e-7 as 2e-7)."""
+    m = dataclasses.replace(anim.read_bvh(CLIP, dtype=np.float32), frame_time=frame_time)
+    path = tmp_path / "ft.bvh"
+    anim.write_bvh(path, m)
+    assert anim.read_bvh(path).frame_time == frame_time
+
+
+def test_unwritable_motions_are_refused_before_writing(tmp_path):
+    """A joint name the file cannot hold, an End Site on a joint that does not exist and an
+    unknown channel name are refused (they were written, or dropped, into files that do not
+    read back)."""
+    m = anim.read_bvh(CLIP, dtype=np.float32)
+    names = ("Left Hip",) + m.skeleton.names[1:]
+    spaced = dataclasses.replace(m, skeleton=dataclasses.replace(m.skeleton, names=names))
+    with pytest.raises(ValueError, match="joint name 'Left Hip' cannot be written"):
+        anim.write_bvh(tmp_path / "a.bvh", spaced)
+    assert not (tmp_path / "a.bvh").exists()
+    with pytest.raises(ValueError, match=r"end_sites\[0\] must be \(joint id in \[0, 31\)"):
+        dataclasses.replace(m, end_sites=((31, (0.0, 1.0, 0.0)),))
+    with pytest.raises(ValueError, match="'Wrotation', not a channel name"):
+        dataclasses.replace(m, channels=(("Xposition", "Wrotation"),) + m.channels[1:])
+
+
+def _tiny_bvh(frames="Frames: 2", rows="0 0 0 0 0 0 0 0 0\n0 0 0 0 0 0 0 10 0\n", name="Knee"):
+    return ("HIERARCHY\nROOT Hips\n{\n  OFFSET 0 0 0\n  CHANNELS 6 Xposition Yposition Zposition Zrotation "
+            f"Xrotation Yrotation\n  JOINT {name}\n  {{\n    OFFSET 0 -1 0\n    CHANNELS 3 Zrotation Xrotation "
+            f"Yrotation\n    End Site\n    {{\n      OFFSET 0 -1 0\n    }}\n  }}\n}}\nMOTION\n{frames}\n"
+            f"Frame Time: 0.0333\n{rows}")
+
+
+def test_obscure_reader_errors_name_the_file_and_line(tmp_path):
+    p = tmp_path / "x.bvh"
+    p.write_text(_tiny_bvh(frames="Frames: 0", rows=""))
+    with pytest.raises(ValueError, match=r"x.bvh: line 17: the frame count must be >= 1"):
+        anim.read_bvh(p)
+    p.write_text(_tiny_bvh(frames="Frames: two"))
+    with pytest.raises(ValueError, match=r"line 17: the frame count must be a non-negative integer, found 'two'"):
+        anim.read_bvh(p)
+    p.write_bytes(_tiny_bvh(name="Kn\xe9e").encode("latin-1"))
+    with pytest.raises(ValueError, match=r"x.bvh: line 6: the file is not UTF-8 text \(byte 0xe9\)"):
+        anim.read_bvh(p)
+    p.write_text(_tiny_bvh().replace("OFFSET 0 -1 0\n    }", "OFFSET a -1 0\n    }"))
+    with pytest.raises(ValueError, match=r"line 12: the End Site OFFSET under 'Knee' must be a number"):
+        anim.read_bvh(p)
+    p.write_text(_tiny_bvh().replace("CHANNELS 3 Zrotation Xrotation Yrotation",
+                                     "CHANNELS 3 Zrotation Xrotation Yrotation\n CHANNELS 1 Xrotation"))
+    with pytest.raises(ValueError, match="joint 'Knee' has a second CHANNELS line"):
+        anim.read_bvh(p)
+    p.write_text(_tiny_bvh())
+    assert anim.read_bvh(p, scale=np.float32(2.0)).skeleton.offsets[1, 1] == -2.0  # a numpy scalar is a number
+    for bad in (True, "2", 0.0, np.inf):
+        with pytest.raises(ValueError, match="scale"):
+            anim.read_bvh(p, scale=bad)
+
+
+def test_motion_values_are_checked_not_reinterpreted():
+    m = anim.read_bvh(CLIP, dtype=np.float32)
+    with pytest.raises(ValueError, match="frame_time .* must be a real number, got 'a'"):
+        dataclasses.replace(m, frame_time="a")
+    with pytest.raises(ValueError, match=r"zero quaternion \(frame 3, joint 2\)"):
+        dataclasses.replace(m, rotations=m.rotations.at[3, 2].set(0.0))
+    with pytest.raises(ValueError, match="at least 1 frame"):
+        dataclasses.replace(m, rotations=m.rotations[:0], root_positions=m.root_positions[:0])
+
+
+def test_euler_and_resample_arguments_name_the_value():
+    with pytest.raises(ValueError, match="order must name rotation axes from 'XYZ'.*got 'W'"):
+        anim.euler_to_quat([1.0, 2.0, 3.0], "W")
+    with pytest.raises(ValueError, match=r"degrees must have shape \(\.\.\., 3\).*got \(2,\)"):
+        anim.euler_to_quat([1.0, 2.0], "XYZ")
+    m = anim.read_bvh(CLIP, dtype=np.float32)
+    with pytest.raises(ValueError, match="frame_time=1e-12 s .* frames \\(at most 600,000\\)"):
+        anim.resample(m, 1e-12)  # tried to allocate terabytes

@@ -88,3 +88,22 @@ def test_bad_arguments():
             anim.foot_contacts(m, **kw)
     with pytest.raises(ValueError, match="contacts must have shape"):
         anim.foot_slide(m, "foot", np.zeros((3, 1), bool))
+
+
+def test_values_that_would_be_reinterpreted_are_refused():
+    """``floor`` must be a finite number (nan and -inf found no contacts, "x" raised from
+    float()), ``release`` finite, bools are not joint ids or frame counts, and a contact
+    flag of 0.3 is not True."""
+    m = walk_of(synthetic()[0])
+    for kw, match in ((dict(floor="x"), "floor must be a real number, got 'x'"),
+                      (dict(floor=np.nan), "floor must be finite"), (dict(floor=-np.inf), "floor must be finite"),
+                      (dict(release=np.inf), "release must be finite"),
+                      (dict(min_frames=True), "min_frames must be an integer"), (dict(up=True), "up must be")):
+        with pytest.raises(ValueError, match=match):
+            anim.foot_contacts(m, "foot", **kw)
+    with pytest.raises(ValueError, match="feet must be joint names or indices"):
+        anim.foot_contacts(m, feet=True)
+    down = anim.foot_contacts(m, "foot", floor=0.0)
+    assert down.any() and np.array_equal(anim.foot_slide(m, "foot", down.astype(int)), anim.foot_slide(m, "foot", down))
+    with pytest.raises(ValueError, match=r"contacts must be bools \(or 0 and 1\), got np.float64\(0.3\)"):
+        anim.foot_slide(m, "foot", np.where(down, 0.3, 0.0))

@@ -2,6 +2,8 @@
 contact spans, bone lengths kept, frames away from the spans unchanged, and gradients
 through it."""
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -100,3 +102,52 @@ def test_bad_arguments(walk):
         anim.lock_feet(w, FEET, down, blend=-1)
     with pytest.raises(ValueError, match="contacts must have shape"):
         anim.lock_feet(w, FEET, down[:10])
+
+
+def _static(bend_deg, T=60):
+    """A synthetic biped standing still, both knees bent by ``bend_deg`` (0: straight legs)."""
+    m, _ = synthetic_walk(1.0, 1.0, 0.0, np.float64, T=T)
+    rot = np.tile(np.asarray(m.rotations)[:1], (T, 1, 1))
+    a = np.radians(bend_deg)
+    for j in (1, 3, 5, 7):  # hips and ankles straight
+        rot[:, j] = (1.0, 0.0, 0.0, 0.0)
+    rot[:, 2] = rot[:, 6] = (np.cos(a / 2), np.sin(a / 2), 0.0, 0.0)
+    return dataclasses.replace(m, rotations=rot, root_positions=np.tile(np.asarray(m.root_positions)[:1], (T, 1)))
+
+
+def test_a_straight_leg_bends_in_its_own_plane():
+    """A static clip on straight legs: the knee stays in the leg's plane (x = const) and
+    bends forward, toward the toe (it moved 8.9 mm sideways and backward); with the knee bent
+    20 degrees the clip is unchanged."""
+    down = np.zeros((60, 2), bool)
+    down[10:50] = True
+    st = _static(0.0)
+    out, info = anim.lock_feet(st, ("ltoe", "rtoe"), down, info=True)
+    P0, P1 = np.asarray(anim.positions(st)), np.asarray(anim.positions(out))
+    for knee in (2, 6):
+        assert np.abs(P1[:, knee, 0] - P0[:, knee, 0]).max() < 1e-9  # in the leg's plane
+        assert np.all(P1[:, knee, 2] - P0[:, knee, 2] >= -1e-12)  # forward, not backward
+    assert bool(np.all(info.held))
+    bent = _static(20.0)
+    np.testing.assert_allclose(np.asarray(anim.positions(anim.lock_feet(bent, ("ltoe", "rtoe"), down))),
+                               np.asarray(anim.positions(bent)), atol=1e-9)
+
+
+def test_a_lock_beyond_the_legs_reach_is_reported():
+    """The root moves 3 m during one contact with a 0.93 m leg: the foot cannot stay; the
+    frames that miss are flagged with the largest miss, and the plain call warns."""
+    down = np.zeros((60, 2), bool)
+    down[5:55] = True
+    st = _static(20.0)
+    root = np.asarray(st.root_positions).copy()
+    root[:, 2] = np.linspace(0.0, 3.0, 60)
+    mv = dataclasses.replace(st, root_positions=root)
+    out, info = anim.lock_feet(mv, ("ltoe", "rtoe"), down, info=True)
+    held = np.asarray(info.held)
+    assert held[:, 0].any() and not held[:, 0].all()  # the middle of the span holds, its ends cannot
+    P = np.asarray(anim.positions(out))[:, 4]
+    lock = np.asarray(anim.positions(mv))[5:55, 4].mean(0)
+    np.testing.assert_allclose(np.asarray(info.miss)[5:55, 0], np.linalg.norm(P[5:55] - lock, axis=-1), atol=1e-9)
+    assert float(info.max_miss[0]) > 0.2
+    with pytest.warns(UserWarning, match=r"could not hold foot joint 4 .* missed by up to 0\.\d"):
+        anim.lock_feet(mv, ("ltoe", "rtoe"), down)

@@ -59,15 +59,31 @@ def test_track_under_jit_survives_a_nan_frame():
     (dict(tol="0.1"), "tol must be a real number"),
     (dict(tol=-1.0), "tol must be >= 0"),
     (dict(tol=np.inf), "tol must be finite"),
-    (dict(trace="no"), "trace must be True or False"),
-    (dict(trace=None), "trace must be True or False"),
-    (dict(early_exit=1), "early_exit must be True or False"),
     (dict(solver="newton"), "solver must be one of"),
 ])
 def test_bad_solver_settings(kw, match):
     raises(match, ik.solve, ARM, TARGETS, **kw)
-    if "trace" not in kw and "early_exit" not in kw:
-        raises(match, ik.track, ARM, TARGETS, **kw)
+    raises(match, ik.track, ARM, TARGETS, **kw)
+
+
+@pytest.mark.parametrize("settings", [ik.FABRIK, ik.CCD, ik.LevenbergMarquardt])
+@pytest.mark.parametrize("kw, match", [
+    (dict(trace="no"), "trace must be True or False"),
+    (dict(trace=None), "trace must be True or False"),
+    (dict(early_exit=1), "early_exit must be True or False"),
+    (dict(implicit_diff=0), "implicit_diff must be True or False"),
+])
+def test_bad_settings_flags(settings, kw, match):
+    raises(match, settings, **kw)
+    if None not in kw.values():  # the old spelling, solve(trace=...), names the same value
+        with pytest.warns(DeprecationWarning, match="moved onto the solver's settings"):
+            raises(match, ik.solve, ARM, TARGETS, **kw)
+
+
+def test_unroll_is_a_sweep_solvers_setting():
+    raises("unroll must be True or False", ik.FABRIK, unroll="yes")
+    with pytest.warns(DeprecationWarning):
+        raises("unroll applies to FABRIK and CCD", ik.solve, ARM, TARGETS, solver="lm", unroll=True)
 
 
 def test_numpy_ints_are_ints():

@@ -122,7 +122,7 @@ def test_bench_runs_only_the_package_benchmarks(tmp_path):
 def test_cli_enables_the_compilation_cache(tmp_path, monkeypatch):
     import jax
 
-    from jaxsim._cli.cache import enable_compilation_cache
+    from jaxsim._jobs.cache import enable_compilation_cache
 
     monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR", str(tmp_path / "cache"))
     old = jax.config.jax_compilation_cache_dir
@@ -131,6 +131,27 @@ def test_cli_enables_the_compilation_cache(tmp_path, monkeypatch):
         assert jax.config.jax_compilation_cache_dir == str(tmp_path / "cache")
     finally:
         jax.config.update("jax_compilation_cache_dir", old)
+
+
+def test_no_cache_leaves_the_compilation_cache_off(tmp_path, monkeypatch):
+    """``demo --no-cache`` sets ``JAXSIM_NO_CACHE`` before enabling anything: the cache stays off."""
+    import jax
+
+    from jaxsim import __main__ as cli
+    from jaxsim._cli import demo
+    from jaxsim._jobs.cache import enable_compilation_cache
+
+    monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.delenv("JAXSIM_NO_CACHE", raising=False)
+    seen = []
+    monkeypatch.setattr(demo, "run", lambda out, fast, checkpoint: seen.append(enable_compilation_cache()) or 0)
+    old = jax.config.jax_compilation_cache_dir
+    try:
+        assert cli.main(["demo", "--no-cache", "--out", str(tmp_path / "demo")]) == 0
+        assert seen == [None] and not (tmp_path / "cache").exists()
+    finally:
+        jax.config.update("jax_compilation_cache_dir", old)
+        os.environ.pop("JAXSIM_NO_CACHE", None)
 
 
 def test_help_and_bad_arguments_do_not_import_jax():
@@ -154,7 +175,7 @@ def test_stages_print_heartbeats_with_the_last_runs_time(tmp_path, monkeypatch, 
     last run of the same stretch (kept beside the compilation cache)."""
     import time
 
-    from jaxsim._cli._progress import Stage
+    from jaxsim._jobs.progress import Stage
 
     monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR", str(tmp_path))
     with Stage("[demo]", "a stage", every=0.05):

@@ -124,3 +124,12 @@ def test_batch_rollout_with_wind_equals_single_rollouts():
 def test_bad_wind_input_is_rejected(make, match):
     with pytest.raises(ValueError, match=match):
         make()
+
+
+def test_a_wind_without_drag_or_lift_is_refused_not_ignored():
+    """``grid(..., wind=)`` with neither ``drag`` nor ``lift`` would move nothing: it raises,
+    naming the wind; ``drag=0.0`` given on purpose keeps the still scene."""
+    with pytest.raises(ValueError, match=r"wind=\(5.0, 0.0, 0.0\) moves nothing without drag or lift"):
+        C.grid(3, 0.1, wind=(5.0, 0.0, 0.0))
+    assert not C.grid(3, 0.1, wind=(5.0, 0.0, 0.0), drag=0.0).aero
+    assert not C.grid(3, 0.1, wind=(0.0, 0.0, 0.0)).aero

@@ -9,6 +9,8 @@ from jax.test_util import check_grads
 from jaxsim import cloth as C
 from jaxsim import ik
 
+from _helpers import SETTINGS
+
 # ---- IK: implicit-function derivatives against the unrolled ones ----
 
 
@@ -19,7 +21,7 @@ def test_ik_implicit_gradient_equals_unrolled_at_converged_solution(solver):
 
     def jacobians(t, off, iters, out, argnums=(0, 1)):
         def f(t, off, implicit):
-            r = ik.solve(ik.Chain(off), t, solver=solver, max_iters=iters, tol=0.0, implicit_diff=implicit)
+            r = ik.solve(ik.Chain(off), t, solver=SETTINGS[solver](iters, 0.0, implicit_diff=implicit))
             return r.positions[-1] if out == "end" else r.positions
 
         unrolled = jax.jacfwd(f, argnums=argnums)(t, off, False)
@@ -54,7 +56,7 @@ def test_ik_implicit_gradients_finite_at_singular_poses(solver):
     targets = jnp.asarray(np.array([c[1] for c in cases]))
 
     def loss(t, off):
-        r = ik.solve(ik.Chain(off), t, solver=solver, max_iters=50, implicit_diff=True)
+        r = ik.solve(ik.Chain(off), t, solver=SETTINGS[solver](50, implicit_diff=True))
         return jnp.sum(r.positions[-1]) + jnp.sum(r.rotations)
 
     g = jax.jit(jax.vmap(jax.grad(loss, argnums=(0, 1))))(targets, offsets)

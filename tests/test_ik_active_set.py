@@ -7,12 +7,12 @@ import numpy as np
 
 from jaxsim import ik
 from jaxsim._geometry import quat as _quat
-from jaxsim.ik._limits import limit_table
-from jaxsim.ik._active_set import bound_normals, tangent_balls
-from jaxsim.ik._implicit import _swing_twist_turned
-from jaxsim.ik._residual import LMProblem, _dofs, jacobian_at
-from jaxsim.ik._skeleton import topology
-from jaxsim.ik._stacked import fk_stacked
+from jaxsim.ik._model.limits import limit_table
+from jaxsim.ik._solvers.active_set import bound_normals, tangent_balls
+from jaxsim.ik._driver.implicit import _swing_twist_turned
+from jaxsim.ik._solvers.residual import LMProblem, _dofs, jacobian_at
+from jaxsim.ik._model.skeleton import topology
+from jaxsim.ik._model.stacked import fk_stacked
 
 from _helpers import random_rotations
 

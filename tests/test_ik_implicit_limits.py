@@ -1,14 +1,16 @@
 """Implicit-function derivatives with joint limits and orientation targets: the bounds a
-solution sits on are held (``jaxsim.ik._implicit``), checked against finite differences of
+solution sits on are held (``jaxsim.ik._driver.implicit``), checked against finite differences of
 re-solved problems where the solution is unique, and by the tangent conditions where not."""
+
+import dataclasses
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from jaxsim import ik
-from jaxsim.ik._implicit import _swing_twist
-from jaxsim.ik._projection import hinge_angle
+from jaxsim.ik._driver.implicit import _swing_twist
+from jaxsim.ik._model.projection import hinge_angle
 from jaxsim._geometry import quat as _quat
 
 
@@ -40,7 +42,7 @@ def test_a_hinge_held_on_its_bound_matches_finite_differences():
         return np.concatenate([[0.0, 0.0], p1, p1 + [np.cos(a), np.sin(a)], [0.5, a - 0.5]])
 
     def solved(t, implicit):
-        r = ik.solve(arm, t, solver=LM, implicit_diff=implicit)
+        r = ik.solve(arm, t, solver=dataclasses.replace(LM, implicit_diff=implicit))
         return jnp.concatenate([r.positions[:, :2].reshape(-1), angles(r.rotations)])
 
     np.testing.assert_allclose(np.asarray(jax.jit(solved, static_argnums=1)(t0, False)), exact(t0), atol=1e-9)
@@ -68,7 +70,7 @@ def test_a_joint_on_its_cone_stays_on_it_and_matches_finite_differences():
         return np.array([np.sin(0.3) * np.cos(phi), np.cos(0.3), np.sin(0.3) * np.sin(phi)])
 
     def out(t):
-        r = ik.solve(sk, t, solver=LM, implicit_diff=True)
+        r = ik.solve(sk, t, solver=dataclasses.replace(LM, implicit_diff=True))
         return r.positions[-1], _swing_twist(r.rotations[0], y)[0]
 
     end, swing = jax.jit(out)(t0)
@@ -91,7 +93,8 @@ def test_orientation_targets_are_followed():
     o0 = np.array([np.cos(ang / 2), 0, 0, np.sin(ang / 2)])
 
     def end(t, o):
-        r = ik.solve(chain, t, solver=MET, orientations=o[None], orientation_weights=[1.0], implicit_diff=True)
+        r = ik.solve(chain, t, solver=dataclasses.replace(MET, implicit_diff=True), orientations=o[None],
+                     orientation_weights=[1.0])
         G = ik.fk(chain, r.rotations).rotations[-1]
         return r.positions[-1], G * jnp.sign(jnp.sum(G * o)), r.converged
 
@@ -113,6 +116,6 @@ def test_gradients_finite_at_a_straight_arm_on_its_bound():
     offsets = np.array([[0.0, 0, 0], [1.0, 0, 0], [1.0, 0, 0]])
     arm = ik.Skeleton(parents=(-1, 0, 1), offsets=offsets,
                       limits=(ik.Hinge((0, 0, 1), 0.0, 1.0), ik.Hinge((0, 0, 1), 0.0, 1.0), None))
-    f = jax.jit(jax.grad(lambda t: jnp.sum(ik.solve(arm, t, solver=LM, implicit_diff=True).positions ** 2)))
+    f = jax.jit(jax.grad(lambda t: jnp.sum(ik.solve(arm, t, solver=dataclasses.replace(LM, implicit_diff=True)).positions ** 2)))
     for t in (np.array([2.0, 0.0, 0.0]), np.array([3.0, 0.0, 0.0]), np.array([1.5, 0.3, 0.0])):
         assert np.all(np.isfinite(np.asarray(f(t)))), t

@@ -1,15 +1,15 @@
-"""LM's limb start (``jaxsim.ik._limb_start``): a two-bone limb bent and swung onto its target."""
+"""LM's limb start (``jaxsim.ik._solvers.limb_start``): a two-bone limb bent and swung onto its target."""
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from jaxsim import ik
-from jaxsim.ik._limb_start import limb_start, limbs
-from jaxsim.ik._limits import limit_table
-from jaxsim.ik._skeleton import topology
-from jaxsim.ik._stacked import fk_stacked
-from jaxsim.ik._starts import default_start
+from jaxsim.ik._solvers.limb_start import limb_start, limbs
+from jaxsim.ik._model.limits import limit_table
+from jaxsim.ik._model.skeleton import topology
+from jaxsim.ik._model.stacked import fk_stacked
+from jaxsim.ik._solvers.starts import default_start
 
 from _helpers import random_rotations
 

@@ -235,7 +235,7 @@ def test_lm_on_a_chain_jit_vmap_and_honest_counts():
     chain = ik.lab_arm()
     rng = np.random.default_rng(5)
     t = np.asarray(ik.fk(chain, random_rotations(rng, (6, chain.num_joints), 1.5)).positions)[:, -1:]
-    f = lambda tt: ik.solve(chain, tt, solver=ik.LevenbergMarquardt(50, 1e-8), trace=True)  # noqa: E731
+    f = lambda tt: ik.solve(chain, tt, solver=ik.LevenbergMarquardt(50, 1e-8, trace=True))  # noqa: E731
     eager = f(t)
     assert eager.error.shape == (6, 1) and bool(jnp.all(eager.converged))
     jitted = jax.jit(f)(t)
@@ -246,7 +246,7 @@ def test_lm_on_a_chain_jit_vmap_and_honest_counts():
     tr, k = np.asarray(eager.trace), np.asarray(eager.iterations)
     for b in range(6):
         assert tr[b, k[b] - 1] <= 1e-8 and (k[b] == 1 or tr[b, k[b] - 2] > 1e-8)
-    ee = ik.solve(chain, t, solver="lm", max_iters=50, tol=1e-8, early_exit=True)
+    ee = ik.solve(chain, t, solver=ik.LevenbergMarquardt(50, 1e-8, early_exit=True))
     np.testing.assert_array_equal(ee.iterations, eager.iterations)
 
 
@@ -254,7 +254,7 @@ def test_lm_on_a_chain_jit_vmap_and_honest_counts():
 def test_lm_default_start_and_seeds():
     """LM's default start (hinges mid-range), and ``seeds=K``: per set the first start that
     converged (else the closest), every seed's iterations counted; bad seeds raise."""
-    from jaxsim.ik._starts import default_start, extra_starts
+    from jaxsim.ik._solvers.starts import default_start, extra_starts
 
     sk = ik.Chain(np.array([[0, 0, 0], [0.5, 0, 0], [0.4, 0, 0], [0.3, 0, 0.0]]),
                   limits=(ik.SwingTwist(1.2), ik.Hinge((0, 0, 1), 0.0, 2.5), ik.Hinge((0, 1, 0), -1.0, 1.0), None))
@@ -269,7 +269,7 @@ def test_lm_default_start_and_seeds():
     K = 3
     starts = np.concatenate([q0[None], np.asarray(extra_starts(sk, K))])
     assert np.all(np.asarray(ik.limit_violation(sk, starts)) <= 1e-12)
-    from jaxsim.ik._starts import HINGE_FRACTIONS
+    from jaxsim.ik._solvers.starts import HINGE_FRACTIONS
 
     for k in range(K - 1):  # the extra starts' hinges spread over their ranges
         for j, (lo, hi) in ((1, (0.0, 2.5)), (2, (-1.0, 1.0))):
@@ -302,9 +302,9 @@ def test_lm_default_start_and_seeds():
 def test_geometric_jacobian_equals_jacfwd(limits, orient):
     """LM's Jacobian from one FK pass (hinges one column, fixed joints none) against
     ``jax.jacfwd`` of its residual, at a random pose, float64."""
-    from jaxsim.ik import _residual
-    from jaxsim.ik._limits import limit_table
-    from jaxsim.ik._skeleton import topology
+    from jaxsim.ik._solvers import residual as _residual
+    from jaxsim.ik._model.limits import limit_table
+    from jaxsim.ik._model.skeleton import topology
 
     rng = np.random.default_rng(11)
     H = ik.humanoid(np.float64, limits=limits)
@@ -332,11 +332,11 @@ def test_stacked_pose_equals_the_per_joint_forms():
     """``_stacked``'s level-by-level FK, vectorised limit projection and effector errors
     against a NumPy FK, the per-joint ``project`` and ``effector_sq_errors``, float64, batched."""
     from jaxsim._geometry import quat as Q
-    from jaxsim.ik import _stacked
-    from jaxsim.ik._limits import limit_table
-    from jaxsim.ik._projection import project
-    from jaxsim.ik._pose import OrientTargets, effector_sq_errors
-    from jaxsim.ik._skeleton import topology
+    from jaxsim.ik._model import stacked as _stacked
+    from jaxsim.ik._model.limits import limit_table
+    from jaxsim.ik._model.projection import project
+    from jaxsim.ik._model.pose import OrientTargets, effector_sq_errors
+    from jaxsim.ik._model.skeleton import topology
 
     rng = np.random.default_rng(5)
     H = ik.humanoid(np.float64)
@@ -416,7 +416,7 @@ def test_track_keeps_limits_on_every_frame(kind):
 def test_spd_solve_unrolled_and_lapack_against_numpy():
     """LM's linear solve, unrolled (up to ``UNROLLED_CHOLESKY_MAX`` unknowns) and by LAPACK
     above, equals numpy's on random SPD systems, under ``vmap`` too."""
-    from jaxsim.ik._lm import UNROLLED_CHOLESKY_MAX, spd_solve
+    from jaxsim.ik._solvers.lm import UNROLLED_CHOLESKY_MAX, spd_solve
 
     rng = np.random.default_rng(4)
     for k in (1, 3, UNROLLED_CHOLESKY_MAX, UNROLLED_CHOLESKY_MAX + 1, 12):

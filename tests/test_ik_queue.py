@@ -1,13 +1,15 @@
 """The work-queue loop (``_loop.refill_sweeps``) against the masked batch loop it stands in for."""
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from jaxsim import ik
-from jaxsim.ik import _lm, _loop
-from jaxsim.ik._loop import masked_sweeps, refill_sweeps
+from jaxsim.ik._solvers import lm as _lm, loop as _loop
+from jaxsim.ik._solvers.loop import masked_sweeps, refill_sweeps
 
 from _helpers import all_eqns, limited_tree, random_rotations
 
@@ -108,15 +110,16 @@ def test_lm_queue_equals_the_vmapped_loop():
     orients = np.asarray(fk.rotations)[:, [3, 5]]
     kw = dict(solver=ik.LevenbergMarquardt(40, 1e-8), effectors=(3, 5), rotations=start, orientations=orients,
               orientation_weights=(0.0, 0.3))
-    queue = ik.solve(sk, T, early_exit=True, **kw)
-    scan = ik.solve(sk, T, early_exit=False, **kw)
+    lm = kw.pop("solver")
+    queue = ik.solve(sk, T, solver=dataclasses.replace(lm, early_exit=True), **kw)
+    scan = ik.solve(sk, T, solver=dataclasses.replace(lm, early_exit=False), **kw)
     np.testing.assert_array_equal(queue.iterations, scan.iterations)
     np.testing.assert_array_equal(queue.converged, scan.converged)
     ok = np.asarray(scan.converged)  # unconverged sets end on a bound or wander: not compared
     assert ok.mean() > 0.5
     np.testing.assert_allclose(np.asarray(queue.rotations)[ok], np.asarray(scan.rotations)[ok], atol=1e-6)
     def prims(early_exit):
-        jaxpr = jax.make_jaxpr(lambda t: ik.solve(sk, t, early_exit=early_exit, **kw))(T).jaxpr
+        jaxpr = jax.make_jaxpr(lambda t: ik.solve(sk, t, solver=dataclasses.replace(lm, early_exit=early_exit), **kw))(T).jaxpr
         return {e.primitive.name for e in all_eqns(jaxpr)}
 
     assert "sort" in prims(True) and "sort" not in prims(False)  # the queue orders the sets to solve
@@ -128,7 +131,7 @@ def test_lm_queue_runs_further_starts_only_where_earlier_ones_failed():
     """``seeds=3`` in the queue (``early_exit``, ``QUEUE_MIN`` sets, 4 iterations: no start
     stalls): per set the first start that converged, else the closest, with the iterations
     of the starts it ran; against each start solved alone."""
-    from jaxsim.ik._starts import default_start, extra_starts
+    from jaxsim.ik._solvers.starts import default_start, extra_starts
 
     sk = ik.Chain(np.array([[0, 0, 0], [0.5, 0, 0], [0.4, 0, 0], [0.3, 0, 0.0]]),
                   limits=(ik.SwingTwist(1.2), ik.Hinge((0, 0, 1), 0.0, 2.5), ik.Hinge((0, 1, 0), -1.0, 1.0), None))
@@ -138,7 +141,7 @@ def test_lm_queue_runs_further_starts_only_where_earlier_ones_failed():
     starts = np.concatenate([np.asarray(default_start(sk))[None], np.asarray(extra_starts(sk, K))])
     settings = ik.LevenbergMarquardt(4, 1e-6)
     runs = [ik.solve(sk, t, solver=settings, rotations=starts[k]) for k in range(K)]
-    many = ik.solve(sk, t, solver=ik.LevenbergMarquardt(4, 1e-6, seeds=K), early_exit=True)
+    many = ik.solve(sk, t, solver=ik.LevenbergMarquardt(4, 1e-6, seeds=K, early_exit=True))
     conv = np.stack([np.asarray(r.converged) for r in runs], axis=1)
     worst = np.stack([np.asarray(r.error).max(-1) for r in runs], axis=1)
     pick = np.where(conv.any(1), np.argmax(conv, axis=1), np.argmin(worst, axis=1))
@@ -158,7 +161,7 @@ def test_forward_mode_through_the_queue():
     t = jnp.asarray(np.asarray(arm.root) + 0.5 * rng.normal(size=(_lm.QUEUE_MIN, 1, 3)))
 
     def end(tt, early_exit):
-        return ik.solve(arm, tt, solver="lm", max_iters=50, tol=1e-10, early_exit=early_exit).positions[:, -1]
+        return ik.solve(arm, tt, solver=ik.LevenbergMarquardt(50, 1e-10, early_exit=early_exit)).positions[:, -1]
 
     v = jnp.full_like(t, 1e-3)
     _, tq = jax.jvp(lambda tt: end(tt, True), (t,), (v,))

@@ -10,7 +10,8 @@ from jax.test_util import check_grads
 
 from _helpers import TOL, random_unit_quaternions
 from jaxsim import curves, ik
-from jaxsim.ik import _fabrik, _joints, _loop
+from jaxsim.ik._solvers import fabrik as _fabrik, loop as _loop
+from jaxsim.ik._model import joints as _joints
 
 SOLVERS = {"ccd": functools.partial(ik.ccd, trace=True), "fabrik": functools.partial(ik.fabrik, trace=True)}
 
@@ -232,8 +233,8 @@ def test_batched_fabrik_frozen_at_first_sweep_within_tol(dtype):
     d = rng.normal(size=(300, 3))
     t = (d / np.linalg.norm(d, axis=1, keepdims=True) * 5.0 * rng.uniform(0, 1.1, (300, 1)) ** (1 / 3)).astype(dtype)
     t[0] = np.asarray(ik.fk(chain).positions)[-1]  # done before the first sweep
-    batched = ik.solve(chain, t[:, None], solver="fabrik", max_iters=40, tol=1e-3, unroll=True)
-    rolled = jax.vmap(lambda x: ik.solve(chain, x, solver="fabrik", max_iters=40, tol=1e-3, unroll=False))(t)
+    batched = ik.solve(chain, t[:, None], solver=ik.FABRIK(40, 1e-3, unroll=True))
+    rolled = jax.vmap(lambda x: ik.solve(chain, x, solver=ik.FABRIK(40, 1e-3, unroll=False)))(t)
     it = np.asarray(batched.iterations)
     assert it.min() == 0 and 1 < np.median(it) < 40 and it.max() == 40  # a mix of stopping sweeps
     np.testing.assert_array_equal(batched.iterations, rolled.iterations)

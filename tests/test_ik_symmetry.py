@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from jaxsim import ik
-from jaxsim.ik._skeleton import topology
-from jaxsim.ik._stacked import fk_stacked
-from jaxsim.ik._symmetry import SYMMETRY_BREAK_ANGLE, bend_straight, branch_segments
+from jaxsim.ik._model.skeleton import topology
+from jaxsim.ik._model.stacked import fk_stacked
+from jaxsim.ik._solvers.symmetry import SYMMETRY_BREAK_ANGLE, bend_straight, branch_segments
 
 from _helpers import fk_reference, quat_matrix, random_unit_quaternions
 

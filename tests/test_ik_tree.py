@@ -5,6 +5,8 @@ of 500 reachable target sets plus the special cases), and the property and gradi
 tests use small trees, so compilation stays a few seconds per case.
 """
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -15,10 +17,10 @@ from jax.test_util import check_grads
 
 from jaxsim import ik
 from jaxsim._geometry import horn as _horn, quat as _quat
-from jaxsim.ik import _inputs, _solve
-from jaxsim.ik._skeleton import topology
+from jaxsim.ik._driver import inputs as _inputs, solve as _solve
+from jaxsim.ik._model.skeleton import topology
 
-from _helpers import fk_reference, random_rotations
+from _helpers import SETTINGS, fk_reference, random_rotations
 
 SOLVERS = ("fabrik", "ccd")
 
@@ -97,7 +99,7 @@ def test_lean_chain_kernel_equals_the_tree_kernel_on_a_chain(seed, kind, unroll)
     assert chain.is_chain and isinstance(chain, ik.Skeleton)
     t = np.asarray(ik.fk(chain, random_rotations(rng, (16, 5), 1.5)).positions)[:, -1:]
     settings_ = ik.FABRIK(60, 1e-6) if kind == "fabrik" else ik.CCD(60, 1e-6)
-    a = ik.solve(chain, t, solver=settings_, unroll=unroll)
+    a = ik.solve(chain, t, solver=dataclasses.replace(settings_, unroll=unroll))
     inp = _inputs.check_inputs(chain, t)
     topo = topology(chain.parents, inp.effectors)
     assert _solve.lean_chain(settings_, topo, None, None)
@@ -204,7 +206,7 @@ def test_random_tree_properties(data):
     start = random_rotations(rng, (J,), 0.5)
     moving = topology(parents, eff).moving
     for kind in SOLVERS:
-        r = ik.solve(sk, t, solver=kind, rotations=start, effectors=eff, max_iters=20, tol=1e-6, trace=True)
+        r = ik.solve(sk, t, solver=SETTINGS[kind](20, 1e-6, trace=True), rotations=start, effectors=eff)
         P = np.asarray(r.positions)
         assert np.all(np.isfinite(P)) and np.all(np.isfinite(np.asarray(r.error)))
         for i, p in enumerate(parents[1:], start=1):
@@ -263,7 +265,7 @@ def test_tree_implicit_diff():
     t = jnp.asarray(np.asarray(ik.fk(sk, random_rotations(rng, (5,), 1.0)).positions)[[2, 4]])
 
     def effs(tt):
-        r = ik.solve(sk, tt, effectors=(2, 4), max_iters=300, tol=1e-8, implicit_diff=True)
+        r = ik.solve(sk, tt, solver=ik.FABRIK(300, 1e-8, implicit_diff=True), effectors=(2, 4))
         return r.positions[jnp.array([2, 4])], r.converged
 
     Jm, converged = jax.jacfwd(effs, has_aux=True)(t)

@@ -20,7 +20,7 @@ import pytest
 from jaxsim import cloth, ik, viz
 from jaxsim._cli import _out
 
-from _helpers import limited_tree, random_rotations
+from _helpers import SETTINGS, limited_tree, random_rotations
 
 
 # ---- silent wrong results ----
@@ -127,7 +127,7 @@ def test_fabrik_with_limits_never_returns_a_pose_worse_than_its_start():
         t = rng.normal(size=(64, 2, 3))
         e0 = np.max(np.linalg.norm(np.asarray(ik.fk(sk, start).positions)[:, [3, 5]] - t, axis=-1), -1)
         for kind in ("fabrik", "ccd"):
-            r = ik.solve(sk, t, solver=kind, rotations=start, effectors=(3, 5), max_iters=30, tol=1e-5, trace=True)
+            r = ik.solve(sk, t, solver=SETTINGS[kind](30, 1e-5, trace=True), rotations=start, effectors=(3, 5))
             e = np.max(np.asarray(r.error), -1)
             assert np.all(e <= e0 + 1e-12), (trial, kind, float(np.max(e - e0)))
             rises += int(np.sum(np.asarray(r.trace)[:, -1] > e0 + 1e-9))  # the last sweep's pose was worse
@@ -201,11 +201,11 @@ def test_obj_with_latin1_comment(tmp_path):
 @pytest.mark.slow
 def test_grad_with_early_exit_names_it():
     ch = ik.straight_chain([1.0, 1.0])
-    f = lambda t: ik.solve(ch, t, early_exit=True).positions.sum()  # noqa: E731
+    f = lambda t: ik.solve(ch, t, solver=ik.FABRIK(early_exit=True)).positions.sum()  # noqa: E731
     with pytest.raises(ValueError, match="early_exit"):
         jax.grad(f)(jnp.array([0.5, 0.0, 1.5]))
     jax.jvp(f, (jnp.array([0.5, 0.0, 1.5]),), (jnp.ones(3),))  # forward mode works
-    g = jax.grad(lambda t: ik.solve(ch, t, early_exit=True, implicit_diff=True).positions.sum())
+    g = jax.grad(lambda t: ik.solve(ch, t, solver=ik.FABRIK(early_exit=True, implicit_diff=True)).positions.sum())
     assert np.all(np.isfinite(np.asarray(g(jnp.array([0.5, 0.0, 1.5])))))
 
 
@@ -314,7 +314,8 @@ class _InterruptedInCallback:
 def test_interrupted_demo_does_not_block_its_rerun(tmp_path, monkeypatch, capsys, where):
     import jaxsim
     from jaxsim import __main__ as cli
-    from jaxsim._cli import cache, demo
+    from jaxsim._cli import demo
+    from jaxsim._jobs import cache
 
     out = tmp_path / "demo"
     sections_after = []

@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import time
 
+from .._jobs.scenes import humanoid_targets
 from ._timing import timed
 from .demo_anim import anim_section
 from .demo_cape import cape_section
@@ -37,26 +38,6 @@ def _ik_section(out: str, fast: bool, lines: list[str]) -> None:
                      f"{float(np.max(res.error)):.2e} | {bool(np.all(res.converged))} | "
                      f"{1e3 * run_s / len(targets):.3f} | {stem}.gif, {stem}.png |")
     lines.append("")
-
-
-def humanoid_targets(skeleton, left="circle", right="heart", size=0.22):
-    """``(T, 4, 3)`` targets for ``HUMANOID_EFFECTORS``: the hands trace two of the lab's
-    curves (scaled to ``size`` m, in the frontal plane in front of the chest), the feet
-    stay at their rest positions."""
-    import numpy as np
-
-    from .. import curves, ik
-
-    rest = np.asarray(ik.fk(skeleton).positions)
-    a, b = (np.asarray(curves.CURVES[n](), np.float64) for n in (left, right))
-    T = min(len(a), len(b))
-    out = np.empty((T, 4, 3))
-    for k, (c, side) in enumerate(((a[:T], 1.0), (b[:T], -1.0))):
-        c = c / np.max(np.abs(c)) * size
-        out[:, k] = np.stack([side * (0.3 + c[:, 0]), 1.2 + c[:, 2], np.full(T, 0.35)], axis=-1)
-    for k, name in ((2, "l_ankle"), (3, "r_ankle")):
-        out[:, k] = rest[skeleton.index(name)]
-    return out
 
 
 def _humanoid_section(out: str, fast: bool, lines: list[str]) -> None:
@@ -143,7 +124,7 @@ def _cloth_section(out: str, fast: bool, lines: list[str]) -> None:
 def run(out: str = "jaxsim-demo", fast: bool = False, checkpoint=None) -> int:
     """Write the demo into ``out``; ``checkpoint()`` (if given) runs after each section,
     so the CLI's manifest lists each section's files as soon as they are written."""
-    from ._progress import Stage
+    from .._jobs.progress import Stage
 
     t0 = time.perf_counter()
     os.makedirs(out, exist_ok=True)

@@ -21,11 +21,11 @@ def _section(k: int, out: str, quick: bool, worker: bool = False):
 
     import jax
 
-    from .._cli._progress import Stage
+    from .._jobs.progress import Stage
     from ._doc import Doc
 
     if worker:  # a fresh process: the parent's settings
-        from .._cli.cache import enable_compilation_cache
+        from .._jobs.cache import enable_compilation_cache
         from .._host_memory import retain_host_memory
 
         jax.config.update("jax_enable_x64", True)

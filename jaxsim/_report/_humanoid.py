@@ -11,6 +11,8 @@ from .. import ik
 from ._doc import Doc, fig_axes
 
 SOLVERS = ("ccd", "fabrik")
+#: The settings object of each solver name.
+SETTINGS = {"fabrik": ik.FABRIK, "ccd": ik.CCD, "lm": ik.LevenbergMarquardt}
 COLORS = {"ccd": "C3", "fabrik": "C0"}
 
 
@@ -61,7 +63,7 @@ def humanoid_section(doc: Doc) -> None:
     rows = []
     for s in SOLVERS:
         def f(s=s):
-            return ik.solve(H, T, solver=s, effectors=eff, max_iters=M, tol=tol, trace=True)
+            return ik.solve(H, T, solver=SETTINGS[s](M, tol, trace=True), effectors=eff)
 
         res, secs, compile_s = timed(f)
         tr = np.asarray(res.trace)

@@ -11,6 +11,7 @@ import numpy as np
 
 from .. import curves, ik
 from ._doc import Doc, fig_axes
+from ._humanoid import SETTINGS
 
 SOLVERS = ("ccd", "fabrik")
 COLORS = {"ccd": "C3", "fabrik": "C0"}
@@ -59,7 +60,7 @@ def _datasets(doc: Doc, dtype, M, n, joints=(6, 10)):
             tg = _targets(n, J - 1, lo, hi, seed=J).astype(dtype)
             floor = np.maximum(np.linalg.norm(tg, axis=1) - (J - 1), 0.0)
             for s in SOLVERS:
-                res, secs = _timed(lambda: ik.solve(chain, tg[:, None], solver=s, max_iters=M, tol=0.0, trace=True))
+                res, secs = _timed(lambda: ik.solve(chain, tg[:, None], solver=SETTINGS[s](M, 0.0, trace=True)))
                 # for unreachable targets the error cannot go below distance - reach: plot the excess
                 tr = np.asarray(res.trace, np.float64) - floor[:, None]
                 out[(f"{J}-joint {kind}", s)] = (np.maximum(tr, 0.0), secs / (n * M), floor)
@@ -223,7 +224,7 @@ def paper_protocol(doc: Doc) -> None:
         tg = _targets(n, reach, lo, hi, seed=11)
         floor = np.maximum(np.linalg.norm(tg, axis=1) - reach, 0.0)
         for s in SOLVERS:
-            r = ik.solve(chain, tg[:, None], solver=s, max_iters=M, tol=0.0, trace=True)
+            r = ik.solve(chain, tg[:, None], solver=SETTINGS[s](M, 0.0, trace=True))
             k = _iters_to(np.asarray(r.trace) - floor[:, None], tol)
             ok = k[np.isfinite(k)]
             rows.append({"targets": kind, "solver": s, "ours": float(ok.mean()) if ok.size else np.nan,

@@ -6,14 +6,14 @@ import numpy as np
 
 from .. import ik
 from ._doc import Doc, fig_axes
-from ._humanoid import error_curves, label_error_axes, random_poses, timed
+from ._humanoid import SETTINGS, error_curves, label_error_axes, random_poses, timed
 
 SOLVERS = ("ccd", "fabrik", "lm")
 COLORS = {"ccd": "C3", "fabrik": "C0", "lm": "C2"}
 
 
 def limits_section(doc: Doc) -> None:
-    from .._cli.demo import humanoid_targets
+    from .._jobs.scenes import humanoid_targets
 
     doc.progress("IK 6: CCD, FABRIK and LM with joint limits")
     H = ik.humanoid(np.float64)
@@ -24,8 +24,8 @@ def limits_section(doc: Doc) -> None:
     fig, axes = fig_axes(2, 1, w=4.6, h=3.4)
     rows = []
     for s in SOLVERS:
-        res, secs, compile_s = timed(lambda s=s: ik.solve(H, T, solver=s, effectors=eff, max_iters=M, tol=tol,
-                                                           trace=True))
+        res, secs, compile_s = timed(lambda s=s: ik.solve(H, T, solver=SETTINGS[s](M, tol, trace=True),
+                                                           effectors=eff))
         tr, it, conv = np.asarray(res.trace), np.asarray(res.iterations), np.asarray(res.converged)
         per_it = secs / M / n
         error_curves(axes, tr, per_it, COLORS[s], s)

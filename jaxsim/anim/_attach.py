@@ -11,6 +11,10 @@ from .._validate import check_finite, check_real, check_shape
 from ._motion import Motion, _fk, _offsets
 
 
+#: The most frames :func:`resample` makes (10 minutes at 1 kHz).
+MAX_FRAMES = 600_000
+
+
 def resample(motion: Motion, frame_time: float, start: float = 0.0, duration: float | None = None) -> Motion:
     """The clip at another frame rate: slerp for the rotations, linear for the root and the
     translations.
@@ -41,6 +45,9 @@ def resample(motion: Motion, frame_time: float, start: float = 0.0, duration: fl
             raise ValueError(f"duration {duration!r} s runs past the clip's end ({left:.4g} s after start={start!r})")
         left = duration
     K = int(np.floor(left / dt * (1 + 1e-9) + 1e-9)) + 1
+    if K > MAX_FRAMES:
+        raise ValueError(f"frame_time={frame_time!r} s over {left:.4g} s makes {K:,} frames (at most {MAX_FRAMES:,}): "
+                         "a frame time this small is likely a unit slip (seconds per frame)")
     s = np.clip((start + dt * np.arange(K)) / ft, 0.0, T - 1)
     i = np.minimum(np.floor(s).astype(np.int64), max(T - 2, 0))
     f = jnp.asarray(s - i, motion.rotations.dtype)

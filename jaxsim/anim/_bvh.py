@@ -17,16 +17,16 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._dtype import check_float_dtype, default_float
+from .._validate import check_real
 from ..ik import Skeleton
 from ._euler import ORDERS, continuous_euler, euler_to_quat
-from ._motion import Motion
+from ._motion import CHANNELS, Motion
 
 #: Scene units (metres) per length unit of the CMU database's BVH files.
 CMU_SCALE = 0.056444
 #: The CMU clip 131_01 ("start, walk, stop"; 31 joints, 994 frames at 120 fps) shipped with jaxsim.
 CMU_WALK = os.path.join(os.path.dirname(__file__), "data", "cmu_131_01.bvh")
 
-CHANNELS = ("Xposition", "Yposition", "Zposition", "Xrotation", "Yrotation", "Zrotation")
 _CANON = {c.lower(): c for c in CHANNELS}
 
 
@@ -140,6 +140,8 @@ def parse(text: str, path: str = "<string>"):
         raise tok.error(f"expected MOTION, found {kw!r}", tok.k - 1)
     tok.expect("Frames:")
     T = tok.integer("the frame count")
+    if T < 1:
+        raise tok.error(f"the frame count must be >= 1 (a Motion has frames), got {T}", tok.k - 1)
     tok.expect("Frame")
     tok.expect("Time:")
     frame_time = tok.number("the frame time")
@@ -196,10 +198,16 @@ def read_bvh(path, scale: float = 1.0, dtype=None) -> Motion:
         unknown channel, a frame count that does not match the values, non-numeric or
         non-finite values, an unknown keyword, or repeated joint names.
     """
-    if not (isinstance(scale, (int, float)) and np.isfinite(scale) and scale > 0):
-        raise ValueError(f"scale must be a finite number > 0, got {scale!r}")
-    with open(os.fspath(path), encoding="utf-8") as f:
-        joints, ends, frame_time, values = parse(f.read(), os.fspath(path))
+    scale = check_real("scale", scale, minimum=0.0, strict=True)
+    with open(os.fspath(path), "rb") as f:
+        raw = f.read()
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as e:
+        line = raw[:e.start].count(b"\n") + 1
+        raise ValueError(f"{os.fspath(path)}: line {line}: the file is not UTF-8 text (byte {raw[e.start]:#04x}); "
+                         "save it as UTF-8 (joint names are read as UTF-8)") from None
+    joints, ends, frame_time, values = parse(text, os.fspath(path))
     dtype = default_float() if dtype is None else check_float_dtype("read_bvh", dtype)  # float64 needs x64
     J, T = len(joints), values.shape[0]
     offsets = scale * np.asarray([j["offset"] for j in joints], np.float64)
@@ -256,11 +264,15 @@ def write_bvh(path, motion: Motion, order: str | None = None, scale: float = 1.0
     """
     if order is not None and order not in ORDERS:
         raise ValueError(f"order must be one of {ORDERS} or None, got {order!r}")
-    if not (isinstance(scale, (int, float)) and np.isfinite(scale) and scale > 0):
-        raise ValueError(f"scale must be a finite number > 0, got {scale!r}")
+    scale = check_real("scale", scale, minimum=0.0, strict=True)
+    check_real("frame_time", motion.frame_time, minimum=0.0, strict=True)
     sk = motion.skeleton
     J, T = sk.num_joints, motion.num_frames
     names = sk.names or tuple(f"joint{i}" for i in range(J))
+    for n in names:  # a name is one word of the file: no white space, no brace
+        if not n or any(ch.isspace() for ch in n) or "{" in n or "}" in n:
+            raise ValueError(f"joint name {n!r} cannot be written to a BVH file (one word, no white space or braces); "
+                             "rename it in the skeleton")
     rot = np.asarray(motion.rotations, np.float64)
     offsets = np.asarray(sk.offsets, np.float64) / scale
     trans = (np.asarray(motion.translations, np.float64).copy() if motion.translations is not None
@@ -308,7 +320,7 @@ def write_bvh(path, motion: Motion, order: str | None = None, scale: float = 1.0
         out.append(pad + "}")
 
     block(0, 0)
-    out += ["MOTION", f"Frames: {T}", f"Frame Time: {motion.frame_time:.7f}"]
+    out += ["MOTION", f"Frames: {T}", f"Frame Time: {float(motion.frame_time)!r}"]
     table = np.stack(cols, axis=1) if cols else np.zeros((T, 0))
     out += [" ".join(_fmt(x) for x in row) for row in table]
     with open(os.fspath(path), "w", encoding="utf-8") as f:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._validate import check_real
 from ._motion import Motion, positions
 
 
@@ -13,7 +14,7 @@ def joint_ids(skeleton, joints, what: str = "feet") -> tuple:
     for f in joints if isinstance(joints, (tuple, list)) else (joints,):
         if isinstance(f, str):
             out.append(skeleton.index(f))
-        elif isinstance(f, (int, np.integer)) and 0 <= int(f) < skeleton.num_joints:
+        elif isinstance(f, (int, np.integer)) and not isinstance(f, bool) and 0 <= int(f) < skeleton.num_joints:
             out.append(int(f))
         else:
             raise ValueError(f"{what} must be joint names or indices in [0, {skeleton.num_joints}), got {f!r}")
@@ -27,8 +28,21 @@ def _joints(motion: Motion, feet) -> tuple:
 
 
 def _check(name, v, positive=True):
-    if not (isinstance(v, (int, float, np.floating)) and np.isfinite(v) and (v > 0 if positive else True)):
-        raise ValueError(f"{name} must be a finite number{' > 0' if positive else ''}, got {v!r}")
+    return check_real(name, v, minimum=0.0 if positive else None, strict=positive)
+
+
+def contact_mask(contacts, shape: tuple) -> np.ndarray:
+    """``contacts`` as a bool array of ``shape``: bools, or numbers that are exactly 0 or 1
+    (``ValueError`` naming the shape or the first other value: 0.3 is not a contact flag)."""
+    c = np.asarray(contacts)
+    if c.shape != shape:
+        raise ValueError(f"contacts must have shape {shape}, got {c.shape}")
+    if c.dtype != bool:
+        if not (np.issubdtype(c.dtype, np.number) and np.all((c == 0) | (c == 1))):
+            bad = c.ravel()[np.flatnonzero(~((c == 0) | (c == 1)).ravel())[0]] if np.issubdtype(c.dtype, np.number) \
+                else c.dtype
+            raise ValueError(f"contacts must be bools (or 0 and 1), got {bad!r}")
+    return c.astype(bool)
 
 
 def foot_contacts(motion: Motion, feet, *, height: float = 0.05, speed: float = 0.2, release: float = 1.5,
@@ -54,11 +68,12 @@ def foot_contacts(motion: Motion, feet, *, height: float = 0.05, speed: float = 
     idx = _joints(motion, feet)
     for name, v in (("height", height), ("speed", speed)):
         _check(name, v)
-    if not (isinstance(release, (int, float)) and release >= 1):
-        raise ValueError(f"release must be a number >= 1, got {release!r}")
-    if not (isinstance(min_frames, int) and min_frames >= 1):
+    release = check_real("release", release, minimum=1.0)
+    if not (isinstance(min_frames, (int, np.integer)) and not isinstance(min_frames, bool) and min_frames >= 1):
         raise ValueError(f"min_frames must be an integer >= 1, got {min_frames!r}")
-    if up not in (0, 1, 2):
+    if floor is not None:
+        floor = check_real("floor", floor)
+    if isinstance(up, bool) or up not in (0, 1, 2):
         raise ValueError(f"up must be 0, 1 or 2, got {up!r}")
     P = np.asarray(positions(motion), np.float64)[:, idx]  # (T, F, 3)
     T = P.shape[0]
@@ -89,9 +104,7 @@ def foot_slide(motion: Motion, feet, contacts, *, up: int = 1) -> np.ndarray:
     where it stands at the start of a contact span, over all its spans (``contacts (T,
     F)`` from :func:`foot_contacts`).  0 where a foot has no span."""
     idx = _joints(motion, feet)
-    contacts = np.asarray(contacts, bool)
-    if contacts.shape != (motion.num_frames, len(idx)):
-        raise ValueError(f"contacts must have shape ({motion.num_frames}, {len(idx)}), got {contacts.shape}")
+    contacts = contact_mask(contacts, (motion.num_frames, len(idx)))
     P = np.asarray(positions(motion), np.float64)[:, idx]
     flat = [k for k in range(3) if k != up]
     out = np.zeros(len(idx))

@@ -38,7 +38,12 @@ def euler_to_quat(degrees, order: str) -> np.ndarray:
     ``order`` names the axes in composition order (``"ZXY"``: ``Rz Rx Ry``); any number
     of axes, so a joint with one or two rotation channels works too.
     """
+    if not (isinstance(order, str) and order and all(c in AXES for c in order)):
+        raise ValueError(f"order must name rotation axes from 'XYZ' in composition order (e.g. 'ZXY'), got {order!r}")
     d = np.radians(np.asarray(degrees, np.float64))
+    if d.ndim < 1 or d.shape[-1] != len(order):
+        raise ValueError(f"degrees must have shape (..., {len(order)}), one angle per axis of {order!r}, got "
+                         f"{d.shape}")
     q = np.zeros(d.shape[:-1] + (4,))
     q[..., 0] = 1.0
     for k, axis in enumerate(order):

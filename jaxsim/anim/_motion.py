@@ -9,9 +9,10 @@ import numpy as np
 
 from .._dataclass import is_concrete, pytree_dataclass, static_field
 from .._dtype import as_float, check_array_dtype
+from .._validate import check_real
 from .._geometry import quat as _quat
 from ..ik import Skeleton
-from ..ik._stacked import fk_stacked
+from ..ik._model.stacked import fk_stacked
 
 
 @pytree_dataclass
@@ -68,10 +69,21 @@ class Motion:
             if bad.any():
                 raise ValueError(f"Motion {name} must be finite; not in frames {np.flatnonzero(bad)[:5].tolist()}")
             object.__setattr__(self, name, as_float(value, dtype))
-        if not (np.isfinite(self.frame_time) and self.frame_time > 0):
-            raise ValueError(f"frame_time must be > 0 seconds, got {self.frame_time!r}")
-        if self.channels and len(self.channels) != J:
-            raise ValueError(f"channels must name each of the {J} joints' channels, got {len(self.channels)} entries")
+        object.__setattr__(self, "frame_time", check_real("frame_time (seconds)", self.frame_time, minimum=0.0,
+                                                          strict=True))
+        if r[0] < 1:
+            raise ValueError("a Motion needs at least 1 frame, got rotations of shape " + str(r))
+        norms = np.linalg.norm(np.asarray(self.rotations, np.float64), axis=-1)
+        if np.any(norms < 1e-6):
+            t, j = np.argwhere(norms < 1e-6)[0]
+            raise ValueError(f"Motion rotations hold a zero quaternion (frame {t}, joint {j}), which is no rotation; "
+                             "use (1, 0, 0, 0) for none")
+        if self.channels:
+            _check_channels(self.channels, J)
+        for k, site in enumerate(self.end_sites):
+            if not (isinstance(site, tuple) and len(site) == 2 and isinstance(site[0], (int, np.integer))
+                    and 0 <= site[0] < J and np.shape(site[1]) == (3,)):
+                raise ValueError(f"end_sites[{k}] must be (joint id in [0, {J}), (x, y, z)), got {site!r}")
 
     @property
     def num_frames(self) -> int:
@@ -81,6 +93,22 @@ class Motion:
     def rotation_order(self, joint: int) -> str:
         """The joint's rotation axes in composition order, e.g. ``"ZXY"`` (``""`` if none)."""
         return "".join(c[0] for c in self.channels[joint] if c.endswith("rotation"))
+
+
+#: The six BVH channel names.
+CHANNELS = ("Xposition", "Yposition", "Zposition", "Xrotation", "Yrotation", "Zrotation")
+
+
+def _check_channels(channels, J: int) -> None:
+    """Per joint a tuple of distinct names from :data:`CHANNELS` (any subset, any order)."""
+    if len(channels) != J:
+        raise ValueError(f"channels must name each of the {J} joints' channels, got {len(channels)} entries")
+    for i, own in enumerate(channels):
+        bad = [c for c in own if c not in CHANNELS]
+        if bad:
+            raise ValueError(f"channels[{i}] holds {bad[0]!r}, not a channel name (one of {', '.join(CHANNELS)})")
+        if len(set(own)) != len(own):
+            raise ValueError(f"channels[{i}] lists a channel twice: {own}")
 
 
 def _offsets(motion: Motion) -> jax.Array:
@@ -100,7 +128,7 @@ def _fk(parents, offsets, root, rotations):
 
 def positions(motion: Motion) -> jax.Array:
     """``(T, J, 3)`` world positions of every joint over the clip: one jitted FK, batched
-    over frames, one tree level at a time (``ik._stacked.fk_stacked``).  Differentiable in
+    over frames, one tree level at a time (``ik._model.stacked.fk_stacked``).  Differentiable in
     the offsets, rotations and root positions."""
     return _fk(motion.skeleton.parents, _offsets(motion), motion.root_positions, motion.rotations)[0]
 

@@ -6,11 +6,13 @@ from ._implicit.contact import FRICTION_EPS_V
 from ._diagnostics import EnergyReport, energy_report
 from . import reference
 from ._model.energy import energy, forces, kinetic_energy, spring_energy, total_energy
-from ._model.mesh import disk, from_mesh, grid_triangles, mesh_springs
+from ._model.grids import grid_triangles
+from ._model.mesh import disk, from_mesh, mesh_springs
 from ._model.obj import TABLECLOTH_OBJ, read_obj, write_obj, write_obj_sequence
 from ._integrators import AUTO_DENSE_MAX_PARTICLES, BDF2, TRBDF2, ExplicitEuler, ImplicitEuler
 from ._linear import CG, Auto, Cholesky, Jacobi, TwoLevel
-from ._model.scene import Cloth, State, grid, grid_springs, lab_cloth, pin_mask, replace
+from ._model.scene import Cloth, State, grid, lab_cloth, pin_mask, replace
+from ._model.grids import grid_springs
 from ._info import StepInfo
 from ._step import rollout, step
 from ._implicit.trace import HESSIANS, NewtonTrace

@@ -141,18 +141,6 @@ def from_mesh(vertices, triangles, *, stiffness: float = 100.0, bending: float |
     )
 
 
-def grid_triangles(n: int) -> np.ndarray:
-    """``(2 n^2, 3)`` triangles of ``grid(n)``'s particles, each cell split along its
-    ``(i, j)``–``(i+1, j+1)`` diagonal (counter-clockwise seen from +y)."""
-    n = check_int("grid_triangles n (cells per side)", n, 1)
-    m = n + 1
-    i, j = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
-    a, b, c, d = i * m + j, (i + 1) * m + j, (i + 1) * m + j + 1, i * m + j + 1
-    t1 = np.stack([a, d, c], -1).reshape(-1, 3)
-    t2 = np.stack([a, c, b], -1).reshape(-1, 3)
-    return np.concatenate([t1, t2]).astype(np.int32)
-
-
 def disk(rings: int = 12, radius: float = 1.0, center=(0.0, 0.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
     """A flat disk in the plane ``y = center[1]``: ``(vertices (N, 3), triangles (F, 3))``,
     ``rings`` concentric rings with ``6 r`` vertices on ring ``r`` (near-equilateral)."""

@@ -11,9 +11,9 @@ import numpy as np
 from ..._dataclass import is_concrete, pytree_dataclass, static_field
 from ..._dtype import as_float, check_array_dtype, check_float_dtype, default_float
 from ..._validate import check_finite, check_int, check_positive, check_real, check_shape
+from .grids import grid_springs, grid_triangles
 from .colliders import check_colliders, count_inside, describe_inside
 from .._self.intersect import first_intersection
-from .._layout.stencil import Stencil
 
 
 @pytree_dataclass
@@ -159,10 +159,12 @@ class Cloth:
             raise ValueError(describe_inside(inside, "rest positions"))
 
     def _check_aero(self, N: int, dtype) -> None:
-        """Wind, drag and lift: finite, ``drag, lift >= 0``, and the triangles they act on;
+        """Wind, drag and lift: finite, ``drag, lift >= 0``, and the triangles they act on (a
+        non-zero wind with neither drag nor lift given raises: it would move nothing);
         the static ``aero`` flag from their values (``None``: set it from them; traced
         values count as nonzero)."""
         set_ = object.__setattr__
+        still = self.drag is None and self.lift is None  # neither given: a wind would move nothing
         given = {"wind": np.zeros(3) if self.wind is None else self.wind,
                  "drag": 0.0 if self.drag is None else self.drag, "lift": 0.0 if self.lift is None else self.lift}
         if not is_concrete(*given.values()):
@@ -176,6 +178,10 @@ class Cloth:
                     check_positive(name, a, strict=False)
                 set_(self, name, as_float(a, dtype))
             on = float(self.drag) != 0.0 or float(self.lift) != 0.0
+            if still and self.aero is None and np.any(np.asarray(self.wind) != 0):
+                raise ValueError(f"wind={tuple(float(w) for w in np.asarray(self.wind))} moves nothing without drag or "
+                                 "lift: give drag= (flat-plate drag, e.g. 0.3) or lift= as well, as rollout(wind=) "
+                                 "needs (drag=0.0 keeps a still scene that ignores the wind)")
             set_(self, "aero", on if self.aero is None else bool(self.aero) or on)
         if self.aero and self.contact_faces is None:
             raise ValueError("drag and lift act on the scene's triangles: build it with grid(..., drag=...) or "
@@ -250,25 +256,6 @@ def pin_mask(n_particles: int, ids) -> np.ndarray:
     return mask
 
 
-#: The grid's spring families: offset of a spring's first particle from its second, and kind.
-GRID_FAMILIES = (((-1, 0), 0), ((0, -1), 0), ((-1, -1), 1), ((-1, 1), 1), ((-2, 0), 2), ((0, -2), 2))
-
-
-def grid_springs(n: int) -> tuple[np.ndarray, np.ndarray]:
-    """Springs of an ``(n+1) x (n+1)`` particle grid, id ``i*(n+1) + j``.
-
-    Returns ``(springs (S, 2), kind (S,))`` with kind 0 structural ``(i-1, j)``,
-    ``(i, j-1)``; 1 shear ``(i-1, j-1)``, ``(i-1, j+1)``; 2 bending ``(i-2, j)``, ``(i, j-2)``
-    (each spring joins particle ``(i, j)`` to the one at that offset).  The springs come
-    family by family, each in row-major order of ``(i, j)``: the layout of the grid
-    operator (``_layout.stencil``), which the scene then applies by shifted slices.
-    """
-    m = n + 1
-    fams = [(o, k) for o, k in GRID_FAMILIES if abs(o[0]) < m and abs(o[1]) < m]
-    st = Stencil(m, m, tuple(o for o, _ in fams))
-    kinds = [np.full(st.count(f), k, np.int8) for f, (_, k) in enumerate(fams)]
-    return st.springs().astype(np.int32), np.concatenate(kinds)
-
 
 def grid(n: int, spacing: float = 0.2, *, origin=(0.0, 1.5, -1.0), mass: float = 1.0, stiffness: float = 100.0,
          damping: float = 0.2, gravity: float = 0.3, pins=None, dtype=None, colliders=(),
@@ -313,15 +300,9 @@ def grid(n: int, spacing: float = 0.2, *, origin=(0.0, 1.5, -1.0), mass: float =
         stiffness=np.full(len(springs), stiffness, dtype), mass=np.full(m * m, mass, dtype),
         pinned=pin_mask(m * m, pins), gravity=np.asarray([0.0, -gravity, 0.0], dtype),
         damping=np.asarray(damping, dtype), colliders=colliders, contact_gap=contact_gap,
-        contact_faces=_grid_faces(n) if self_contact or drag or lift else None, self_contact=bool(self_contact),
+        contact_faces=grid_triangles(n) if self_contact or drag or lift else None, self_contact=bool(self_contact),
         self_contact_pairs=self_contact_pairs or 0, wind=wind, drag=drag, lift=lift,
     )
-
-
-def _grid_faces(n):
-    from .mesh import grid_triangles  # (mesh builds on this module)
-
-    return grid_triangles(n)
 
 
 def lab_cloth(dtype=None) -> Cloth:

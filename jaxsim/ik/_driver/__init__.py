@@ -1,0 +1,1 @@
+"""The IK driver: the public entry points, input checks, the kernel choice, implicit derivatives and tracking."""
