@@ -26,18 +26,21 @@ _totals: dict[str, list[float]] = {name: [0, 0.0] for name in EVENTS.values()}
 _totals["cache_hits"] = [0, 0.0]
 #: Backend compiles and their seconds per test file (for finding where the compile work is).
 _per_file: dict[str, list[float]] = {}
+#: Backend compiles and their seconds per compiled function's name (``jit_broadcast_in_dim``, ...).
+_per_name: dict[str, list[float]] = {}
 _current = ["(collection)"]
 
 
-def _on_duration(event: str, secs: float, **_kw) -> None:
+def _on_duration(event: str, secs: float, **kw) -> None:
     name = EVENTS.get(event)
     if name is not None:
         _totals[name][0] += 1
         _totals[name][1] += secs
         if name == "compiles":
-            row = _per_file.setdefault(_current[0], [0, 0.0])
-            row[0] += 1
-            row[1] += secs
+            for table, key in ((_per_file, _current[0]), (_per_name, str(kw.get("fun_name", "?")))):
+                row = table.setdefault(key, [0, 0.0])
+                row[0] += 1
+                row[1] += secs
 
 
 def _on_event(event: str, **_kw) -> None:
@@ -56,7 +59,7 @@ def pytest_runtest_setup(item):
 def pytest_sessionfinish(session, exitstatus):
     workeroutput = getattr(session.config, "workeroutput", None)
     if workeroutput is not None:  # an xdist worker: hand the totals to the controller
-        workeroutput["jaxsim_compile_stats"] = json.dumps({"totals": _totals, "files": _per_file})
+        workeroutput["jaxsim_compile_stats"] = json.dumps({"totals": _totals, "files": _per_file, "names": _per_name})
 
 
 def pytest_testnodedown(node, error):
@@ -66,10 +69,11 @@ def pytest_testnodedown(node, error):
         for name, (n, secs) in out["totals"].items():
             _totals[name][0] += n
             _totals[name][1] += secs
-        for name, (n, secs) in out["files"].items():
-            row = _per_file.setdefault(name, [0, 0.0])
-            row[0] += n
-            row[1] += secs
+        for table, part in ((_per_file, out["files"]), (_per_name, out["names"])):
+            for name, (n, secs) in part.items():
+                row = table.setdefault(name, [0, 0.0])
+                row[0] += n
+                row[1] += secs
 
 
 def pytest_terminal_summary(terminalreporter, exitstatus, config):
@@ -82,8 +86,10 @@ def pytest_terminal_summary(terminalreporter, exitstatus, config):
     terminalreporter.write_line(line)
     path = os.environ.get("JAXSIM_COMPILE_STATS")
     if path:
-        files = {k: {"compiles": v[0], "seconds": round(v[1], 2)}
-                 for k, v in sorted(_per_file.items(), key=lambda kv: -kv[1][1])}
+        def rows(table):
+            return {k: {"compiles": v[0], "seconds": round(v[1], 2)}
+                    for k, v in sorted(table.items(), key=lambda kv: -kv[1][0])}
+
         with open(path, "w") as f:
             json.dump({"totals": {k: {"count": v[0], "seconds": round(v[1], 2)} for k, v in t.items()},
-                       "files": files}, f, indent=1)
+                       "files": rows(_per_file), "names": rows(_per_name)}, f, indent=1)

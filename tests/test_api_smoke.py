@@ -4,6 +4,7 @@ closed form or numpy on a tiny input (``test_api_coverage`` keeps the list hones
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from jaxsim import anim, cloth as C, curves, ik, viz
 
@@ -86,3 +87,22 @@ def test_rotation_change_is_the_relative_angle():
 def test_new_figure_is_a_figure_with_axes():
     fig, ax = viz.new_figure(3.0, 2.0, dpi=50)
     assert fig.get_size_inches().tolist() == [3.0, 2.0] and ax in fig.axes
+
+
+def test_energy_report_refuses_states_of_another_scene():
+    c, other = C.lab_cloth(np.float64), C.grid(3, 0.1, dtype=np.float64)
+    s0 = C.State.at_rest(c)
+    states, infos = C.rollout(c, s0, 1 / 60, 2)
+    _, other_infos = C.rollout(other, C.State.at_rest(other), 1 / 60, 3)
+    with pytest.raises(ValueError, match=r"state0.x must be \(121, 3\) .* got \(16, 3\)"):
+        C.energy_report(c, C.State.at_rest(other), states, infos)
+    with pytest.raises(ValueError, match=r"states.x must be \(T, 16, 3\) .* got \(2, 121, 3\)"):
+        C.energy_report(other, C.State.at_rest(other), states, infos)
+    with pytest.raises(ValueError, match="infos must hold the rollout's 2 steps"):
+        C.energy_report(c, s0, states, other_infos)
+
+
+def test_self_contact_pairs_zero_is_refused_not_the_default():
+    assert C.grid(3, 0.1, self_contact=True).self_contact_pairs == 8 * 16  # None: the default
+    with pytest.raises(ValueError, match="self_contact_pairs must be an int >= 1, got 0"):
+        C.grid(3, 0.1, self_contact=True, self_contact_pairs=0)

@@ -94,7 +94,7 @@ def test_analytic_hessian_equals_autodiff(lab):
         x = jnp.asarray(perturbed(lab, scale, seed))
         l = np.linalg.norm(np.diff(np.asarray(x)[np.asarray(lab.springs)], axis=1)[:, 0], axis=-1)
         assert np.any(l < np.asarray(lab.rest_length)) and np.any(l > np.asarray(lab.rest_length))
-        H_ad = jax.hessian(C.spring_energy, argnums=1)(lab, x).reshape(363, 363)
+        H_ad = jax.jit(jax.hessian(C.spring_energy, argnums=1))(lab, x).reshape(363, 363)
         H_an, blocks = C.reference.spring_hessian(lab, x)
         rel = np.max(np.abs(H_ad - H_an)) / np.max(np.abs(H_an))
         assert rel < 1e-9
@@ -157,7 +157,7 @@ def test_radial_blocks_equal_element_hessian():
         args = (d0, l0, l0 - L, k, e0, damp) if damp is not None else (d0, l0, l0 - L, k)
         hess = jax.hessian(en.step_element)
         axes = (0, 0, 0, 0, 0, 0, None)[:len(args) + 1]
-        H = jax.vmap(hess, in_axes=axes)(jnp.asarray(dd), *map(jnp.asarray, args))
+        H = jax.jit(jax.vmap(hess, in_axes=axes))(jnp.asarray(dd), *map(jnp.asarray, args))
         A = en.blocks_from_elements(d0, l0, l0 - L, k, jnp.asarray(dd), *((e0, damp) if damp else ()),
                                     project_psd=False)
         np.testing.assert_allclose(A, H, rtol=1e-12, atol=1e-12 * np.abs(H).max())

@@ -142,3 +142,21 @@ def test_pins_need_an_implicit_integrator_and_pinned_particles():
     three = C.grid(4, 0.1, pins=[0, 1, 2], dtype=np.float64)
     with pytest.raises(ValueError, match="same number of pinned particles"):
         C.batch_rollout([SCENE, three], START, DT, T, pins=PATH)
+
+
+def test_pins_driven_inside_a_collider_are_refused():
+    """A pin path that enters a body capsule would leave every step converged and stable
+    around a cloth that passes through the body (a pin is driven, not pushed back): the
+    rollout refuses it, naming the pin, the collider and the step, for a still collider and
+    a collider path."""
+    rest = np.asarray(SCENE.rest)
+    body = C.Capsule(rest[IDS[0]] + [-0.25, 0.0, -0.1], rest[IDS[0]] + [-0.25, 0.0, 0.5], 0.06)  # beside the x=0 edge
+    scene = C.replace(SCENE, colliders=(body,))
+    into = translation([-2.0, 0.0, 0.0])  # the pins move 0.067 m a step toward it: inside from step 2 (0.2 m)
+    with pytest.raises(ValueError, match=rf"pinned particle {IDS[0]} is driven inside colliders\[0\] \(Capsule\) "
+                                         r"at step 2"):
+        C.rollout(scene, START, DT, T, pins=into)
+    path = jax.tree_util.tree_map(lambda a: np.broadcast_to(np.asarray(a), (T,) + np.shape(a)), (body,))
+    with pytest.raises(ValueError, match="driven inside colliders"):
+        C.rollout(scene, START, DT, T, pins=into, colliders=path)
+    C.rollout(scene, START, DT, 2, pins=into[:2])  # outside for the first steps: taken

@@ -270,7 +270,7 @@ def _layers_moving(seed, scale, down):
     x = c.rest
     rng = np.random.default_rng(seed)
     dx = jnp.asarray(rng.normal(scale=scale, size=x.shape)).at[: c.num_particles // 2, 1].add(-down)
-    return c, sc_, x, dx, sp.pairs(sc_, x, dx)
+    return c, sc_, x, dx, jax.jit(sp.pairs)(sc_, x, dx)
 
 
 @pytest.mark.slow
@@ -318,7 +318,8 @@ def test_newtons_sums_over_the_slots_in_use_equal_the_definition():
     free = jnp.ones((c.num_particles, 1), x.dtype).at[:5].set(0.0)
     for pset in (s, gaps):
         sc2 = dataclasses.replace(sc_, pairs=pset)
-        (e0, f0), g0 = jax.value_and_grad(lambda z: sct.potential_and_forces(sc2, z, free), has_aux=True)(y)
+        (e0, f0), g0 = jax.jit(jax.value_and_grad(lambda z, sc2: sct.potential_and_forces(sc2, z, free),
+                                                  has_aux=True))(y, sc2)
         e1, g1, f1 = jax.jit(sct.summed, static_argnames="chunk")(sc2, y, free, chunk=3)
         assert e0 > 0 and np.all(np.isfinite(np.asarray(g1)))
         np.testing.assert_allclose(e1, e0, rtol=1e-12)

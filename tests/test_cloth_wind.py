@@ -52,7 +52,7 @@ def test_the_forces_are_the_flat_plate_model():
     v = rng.normal(size=REST.shape)
     p = pr.StepProblem.build(FACING, jnp.asarray(x), jnp.asarray(v), jnp.asarray(DT))
     w = jnp.asarray(DT * v) - p.prediction  # so u = h v
-    got = -jax.grad(parts._aero_potential)(w, p)
+    got = -jax.jit(jax.grad(parts._aero_potential))(w, p)
     want = reference_forces(np.asarray(FACING.contact_faces), x, v, np.array([0, 0, 3.0]), 0.6, 0.3)
     np.testing.assert_allclose(got, want, rtol=1e-10, atol=1e-12)
 
@@ -62,10 +62,11 @@ def test_newtons_gradient_and_hessian_with_wind_are_the_energys():
     p = pr.StepProblem.build(FACING, AT_REST.x, jnp.asarray(rng.normal(size=REST.shape)), jnp.asarray(DT))
     w = jnp.asarray(0.01 * rng.normal(size=REST.shape))
     t = pr.spring_terms(w, p)
-    np.testing.assert_allclose(pr.gradient(w, p, t), jax.grad(pr.incremental_potential)(w, p), rtol=0, atol=1e-11)
+    np.testing.assert_allclose(jax.jit(pr.gradient)(w, p, t), jax.jit(jax.grad(pr.incremental_potential))(w, p),
+                               rtol=0, atol=1e-11)
     sv = NewtonSetup(p, C.ImplicitEuler(linear_solver=C.Cholesky()))
     parts = dr.hessian_parts(sv, w, t)
-    H = jax.hessian(lambda a: pr.incremental_potential(a.reshape(-1, 3), p))(w.reshape(-1))
+    H = jax.jit(jax.hessian(lambda a, p: pr.incremental_potential(a.reshape(-1, 3), p)))(w.reshape(-1), p)
     np.testing.assert_allclose(dr.assembled(sv, parts.exact, parts.contact, pairs=parts.pairs), H, rtol=0,
                                atol=1e-10)
 

@@ -321,11 +321,11 @@ def test_geometric_jacobian_equals_jacfwd(limits, orient):
     def residual(d):
         return _residual._residual(topo, H.offsets, _residual._perturb(L, d, dofs, table), prob)[0]
 
-    expected = jax.jacfwd(residual)(jnp.zeros(dofs.n))
-    got, r = _residual.geometric_jacobian(topo, H.offsets, L, prob, dofs, table)
+    expected = jax.jit(jax.jacfwd(residual))(jnp.zeros(dofs.n))
+    got, r = jax.jit(_residual.geometric_jacobian, static_argnums=(0, 4))(topo, H.offsets, L, prob, dofs, table)
     assert got.shape == expected.shape == (len(eff) * (12 if orient else 3), dofs.n)
     np.testing.assert_allclose(got, expected, atol=1e-10, rtol=0)
-    np.testing.assert_allclose(r, residual(jnp.zeros(dofs.n)), atol=0, rtol=0)
+    np.testing.assert_allclose(r, jax.jit(residual)(jnp.zeros(dofs.n)), atol=0, rtol=0)
 
 
 def test_stacked_pose_equals_the_per_joint_forms():
@@ -424,5 +424,7 @@ def test_spd_solve_unrolled_and_lapack_against_numpy():
         A = M @ np.swapaxes(M, -1, -2) + 0.1 * np.eye(k)
         b = rng.normal(size=(5, k))
         want = np.linalg.solve(A, b[..., None])[..., 0]
-        np.testing.assert_allclose(jax.vmap(spd_solve)(jnp.asarray(A), jnp.asarray(b)), want, rtol=1e-9, atol=1e-9)
-        np.testing.assert_allclose(spd_solve(jnp.asarray(A[0]), jnp.asarray(b[0])), want[0], rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(jax.jit(jax.vmap(spd_solve))(jnp.asarray(A), jnp.asarray(b)), want, rtol=1e-9,
+                                   atol=1e-9)
+        np.testing.assert_allclose(jax.jit(spd_solve)(jnp.asarray(A[0]), jnp.asarray(b[0])), want[0], rtol=1e-9,
+                                   atol=1e-9)

@@ -349,3 +349,21 @@ def test_limited_tree_helper_is_limited():
     sk = limited_tree(np.random.default_rng(0))
     assert sk.limits is not None and sum(lim is not None for lim in sk.limits) >= 4
     assert math.isclose(float(jnp.max(ik.limit_violation(sk, sk.rest_rotations()))), 0.0)
+
+
+@pytest.mark.parametrize("solver", ["fabrik", "lm"])
+def test_nonfinite_targets_inside_jit_are_flagged_with_finite_rotations(solver):
+    """Inside ``jit`` a NaN or inf target cannot raise: that set comes back at its start pose
+    (finite rotations), with ``error`` inf, no iterations and not converged; the other sets
+    are solved as if it were not there (it gave NaN rotations, flagged by converged only)."""
+    arm = ik.lab_arm()
+    good = np.asarray(arm.root) + np.array([[0.6, 0.3, 0.4], [0.5, 0.2, 0.1]])
+    T = np.stack([good[0], [np.nan, 0.0, 0.0], good[1], [0.0, np.inf, 0.0]])
+    f = jax.jit(lambda t: ik.solve(arm, t, solver=solver))
+    r = f(jnp.asarray(T))
+    ref = f(jnp.asarray(good))
+    assert bool(jnp.all(jnp.isfinite(r.rotations))) and bool(jnp.all(jnp.isfinite(r.positions)))
+    np.testing.assert_array_equal(np.asarray(r.error)[[1, 3], 0], [np.inf, np.inf])
+    np.testing.assert_array_equal(np.asarray(r.iterations)[[1, 3]], [0, 0])
+    assert not np.asarray(r.converged)[[1, 3]].any() and np.asarray(r.converged)[[0, 2]].all()
+    np.testing.assert_allclose(np.asarray(r.rotations)[[0, 2]], np.asarray(ref.rotations), atol=1e-6)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import jax
 import jax.numpy as jnp
 
 from .._dataclass import is_concrete
@@ -52,13 +53,21 @@ def resample(motion: Motion, frame_time: float, start: float = 0.0, duration: fl
     i = np.minimum(np.floor(s).astype(np.int64), max(T - 2, 0))
     f = jnp.asarray(s - i, motion.rotations.dtype)
     j = np.minimum(i + 1, T - 1)
-    lerp = lambda a: a[i] + f.reshape((K,) + (1,) * (a.ndim - 1)) * (a[j] - a[i])  # noqa: E731
-    q0 = _quat.unstack(motion.rotations[i], axis=-1)
-    q1 = _quat.unstack(motion.rotations[j], axis=-1)
+    rot, root, trans = _interpolated(motion.rotations, motion.root_positions, motion.translations, jnp.asarray(i),
+                                     jnp.asarray(j), f)
+    return Motion(motion.skeleton, rot, root, trans, frame_time=dt, channels=motion.channels,
+                  end_sites=motion.end_sites)
+
+
+@jax.jit
+def _interpolated(rotations, root, translations, i, j, f):
+    """Frames ``i + f`` of a clip: rotations by slerp, positions by lerp (``i, j, f (K,)``)."""
+    def lerp(a):
+        return a[i] + f.reshape(f.shape + (1,) * (a.ndim - 1)) * (a[j] - a[i])
+
+    q0, q1 = _quat.unstack(rotations[i], axis=-1), _quat.unstack(rotations[j], axis=-1)
     rot = _quat.stack(_quat.slerp(q0, q1, f[:, None]), axis=-1)
-    trans = None if motion.translations is None else lerp(motion.translations)
-    return Motion(motion.skeleton, rot, lerp(motion.root_positions), trans, frame_time=dt,
-                  channels=motion.channels, end_sites=motion.end_sites)
+    return rot, lerp(root), None if translations is None else lerp(translations)
 
 
 def _joint(motion: Motion, joint) -> int:
@@ -101,9 +110,16 @@ def bone_points(motion: Motion, joint, local_points, frame_time: float | None = 
     if local.ndim != 2 or local.shape[1] != 3:
         raise ValueError(f"local_points must have shape (K, 3), got {tuple(local.shape)}")
     P, G = _frames(motion, frame_time)
-    q = _quat.unstack(G[:, j][:, None, :], axis=-1)
+    return _carried(P[:, j], G[:, j], local)
+
+
+@jax.jit
+def _carried(p, g, local):
+    """``(T, K, 3)``: the points ``local (K, 3)`` carried by a joint's frames, origin ``p (T, 3)``,
+    rotation ``g (T, 4)``."""
+    q = _quat.unstack(g[:, None, :], axis=-1)
     v = _quat.unstack(local[None], axis=-1)
-    return P[:, j][:, None, :] + _quat.stack(_quat.rotate(q, v), axis=-1)
+    return p[:, None, :] + _quat.stack(_quat.rotate(q, v), axis=-1)
 
 
 def bone_local(motion: Motion, joint, points, frame: int = 0):

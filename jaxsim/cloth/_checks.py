@@ -14,7 +14,7 @@ from .._validate import check_finite, check_real, check_shape
 from ._implicit.resume import Resume
 from ._info import StepInfo
 from ._integrators import BDF2, TRBDF2, ExplicitEuler, ImplicitEuler
-from ._model.colliders import COLLIDERS, collider_kinds, count_inside, describe_inside
+from ._model.colliders import COLLIDERS, collider_kinds, count_inside, describe_inside, host_distance
 from ._model.scene import Cloth, State
 from ._self.intersect import first_intersection
 
@@ -142,6 +142,30 @@ def check_pins(cloth: Cloth, pins, lead: tuple, integrator):
             raise ValueError(f"pins must hold real numbers, got dtype {a.dtype}")
         check_finite("pins", a)
     return jnp.asarray(pins, cloth.dtype)
+
+
+def check_pins_outside(cloth: Cloth, pins, path) -> None:
+    """Concrete moving pins must stay outside every collider (the scene's, or the step's
+    pose of a collider ``path``): a pinned particle is driven, not pushed back by the
+    barrier, so a pin inside a body would leave the steps converged and stable around a
+    cloth that passes through it.  ``ValueError`` naming the first step, pin and collider."""
+    if pins is None or not cloth.colliders or np.ndim(cloth.pinned) != 1:
+        return
+    cols = cloth.colliders if path is None else path
+    if not is_concrete(pins, *jax.tree_util.tree_leaves(cols)):
+        return
+    P = np.asarray(pins, np.float64)  # (T, K, 3)
+    for k, c in enumerate(cols):
+        if path is None:
+            d = host_distance(c, P.reshape(-1, 3)).reshape(P.shape[:2])
+        else:
+            d = np.stack([host_distance(jax.tree_util.tree_map(lambda a, t=t: a[t], c), P[t]) for t in range(len(P))])
+        bad = np.argwhere(d <= 0)
+        if bad.size:
+            t, p = bad[0]
+            raise ValueError(f"pins: pinned particle {int(np.flatnonzero(np.asarray(cloth.pinned))[p])} is driven inside "
+                             f"colliders[{k}] ({type(c).__name__}) at step {t} ({len(bad)} pin positions inside in "
+                             "all); keep the pin path outside the colliders (a pin is not pushed back by contact)")
 
 
 def check_wind(cloth: Cloth, wind, lead: tuple):

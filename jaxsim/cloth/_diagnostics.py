@@ -32,7 +32,27 @@ class EnergyReport:
 
 
 def energy_report(cloth: Cloth, state0: State, states: State, infos) -> EnergyReport:
-    """Summarise the energy of ``rollout`` output ``(states, infos)`` started at ``state0``."""
+    """Summarise the energy of ``rollout`` output ``(states, infos)`` started at ``state0``.
+
+    Raises:
+      ValueError: when ``state0`` is not ``(N, 3)`` or ``states`` not ``(T, N, 3)`` for the
+        scene's ``N`` particles, or ``infos`` does not hold ``T`` steps (states from another
+        scene or rollout).
+    """
+    if not isinstance(cloth, Cloth):
+        raise TypeError(f"cloth must be a jaxsim.cloth.Cloth, got {type(cloth).__name__}")
+    N = cloth.num_particles
+    for name, st, shape in (("state0", state0, (N, 3)), ("states", states, (None, N, 3))):
+        for field in ("x", "v"):
+            got = tuple(jnp.shape(getattr(st, field, None)))
+            if len(got) != len(shape) or any(w is not None and g != w for g, w in zip(got, shape)):
+                want = "(T, " + f"{N}, 3)" if shape[0] is None else f"({N}, 3)"
+                raise ValueError(f"energy_report: {name}.{field} must be {want} for this scene's {N} particles, got "
+                                 f"{got} (states of another scene?)")
+    T = jnp.shape(states.x)[0]
+    if tuple(jnp.shape(infos.stable)) != (T,):
+        raise ValueError(f"energy_report: infos must hold the rollout's {T} steps, got stable of shape "
+                         f"{tuple(jnp.shape(infos.stable))}")
     e = jax.vmap(lambda x, v: total_energy(cloth, x, v))(states.x, states.v)
     e = jnp.concatenate([total_energy(cloth, state0.x, state0.v)[None], e])
     d = jnp.diff(e)

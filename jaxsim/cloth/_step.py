@@ -10,7 +10,8 @@ import jax.numpy as jnp
 from jax import lax
 
 from .._validate import check_bool, check_int
-from ._checks import check_inputs, check_path, check_pins, check_resume, check_wind, particle_array, valid_inputs
+from ._checks import check_inputs, check_path, check_pins, check_pins_outside, check_resume, check_wind, particle_array, \
+    valid_inputs
 from ._explicit import explicit
 from ._implicit.bdf2 import Before
 from ._implicit.extrapolate import History
@@ -215,6 +216,7 @@ def rollout(cloth: Cloth, state: State, dt, n_steps: int, integrator=ImplicitEul
     path = check_path(cloth, colliders, n_steps)
     resume = check_resume(cloth, resume, bdf2=isinstance(integrator, BDF2))
     pins = check_pins(cloth, pins, (n_steps,), integrator)
+    check_pins_outside(cloth, pins, path)
     wind = check_wind(cloth, wind, (n_steps,))
     layout = layout_of(cloth.springs, cloth.rest)
     return _rollout(cloth, layout, state, jnp.asarray(dt, cloth.dtype), n_steps, integrator,

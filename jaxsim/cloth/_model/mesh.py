@@ -137,7 +137,7 @@ def from_mesh(vertices, triangles, *, stiffness: float = 100.0, bending: float |
         mass=lumped_masses(V, T, density).astype(dtype), pinned=pin_mask(len(V), [] if pins is None else pins),
         gravity=np.asarray([0.0, -gravity, 0.0], dtype), damping=np.asarray(damping, dtype), colliders=colliders,
         contact_gap=contact_gap, contact_faces=T if self_contact or drag or lift else None,
-        self_contact=bool(self_contact), self_contact_pairs=self_contact_pairs or 0, wind=wind, drag=drag, lift=lift,
+        self_contact=bool(self_contact), self_contact_pairs=self_contact_pairs, wind=wind, drag=drag, lift=lift,
     )
 
 

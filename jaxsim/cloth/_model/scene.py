@@ -75,7 +75,7 @@ class Cloth:
     contact_faces: jax.Array | None = None
     contact_edges: jax.Array | None = None
     self_contact: bool = static_field(default=False)
-    self_contact_pairs: int = static_field(default=0)
+    self_contact_pairs: int | None = static_field(default=None)
     wind: jax.Array | None = None
     drag: jax.Array | None = None
     lift: jax.Array | None = None
@@ -143,7 +143,7 @@ class Cloth:
             faces, edges = check_faces(self.contact_faces, N, self.self_contact)
             set_(self, "contact_faces", faces)
             set_(self, "contact_edges", edges)
-            cap = check_int("self_contact_pairs", self.self_contact_pairs or 8 * N, 1)
+            cap = check_int("self_contact_pairs", 8 * N if self.self_contact_pairs is None else self.self_contact_pairs, 1)
             set_(self, "self_contact_pairs", cap)
             if self.self_contact:
                 hit = first_intersection(np.asarray(rest, np.float64), faces, edges)
@@ -301,7 +301,7 @@ def grid(n: int, spacing: float = 0.2, *, origin=(0.0, 1.5, -1.0), mass: float =
         pinned=pin_mask(m * m, pins), gravity=np.asarray([0.0, -gravity, 0.0], dtype),
         damping=np.asarray(damping, dtype), colliders=colliders, contact_gap=contact_gap,
         contact_faces=grid_triangles(n) if self_contact or drag or lift else None, self_contact=bool(self_contact),
-        self_contact_pairs=self_contact_pairs or 0, wind=wind, drag=drag, lift=lift,
+        self_contact_pairs=self_contact_pairs, wind=wind, drag=drag, lift=lift,
     )
 
 

@@ -17,7 +17,7 @@ import numpy as np
 from jax import lax
 
 from ... import _sharding
-from ..._dataclass import in_reverse_mode
+from ..._dataclass import in_reverse_mode, is_concrete
 from .._model import joints as _joints
 from .._model.fk import fk
 from .implicit import implicit_rotations
@@ -86,6 +86,9 @@ def solve_ik(settings, model, targets, *, rotations=None, effectors=None, weight
         res = solve_ik(settings, model, tflat, rotations=rflat, effectors=inp.effectors, sharded=False)
         return jax.tree_util.tree_map(lambda a: a.reshape(batch + a.shape[1:]), _sharding.unpad(res, pad))
     kw = dict(trace=bool(trace), unroll=unroll, stop=bool(implicit_diff), limbs=own_start)
+    bad = None
+    if not is_concrete(*(a for a in (inp.targets, inp.orientations) if a is not None)):  # traced: non-finite sets cannot raise here
+        bad, inp = _finite_sets(inp)
     if early_exit is None and not implicit_diff:  # the early loop, and the scan where differentiated
         res = _early_or_scan(settings, model, inp, topo, table, lean, pole_limbs, pole_points, **kw)
     else:
@@ -93,7 +96,37 @@ def solve_ik(settings, model, targets, *, rotations=None, effectors=None, weight
                    poles=(pole_limbs, pole_points), **kw)
     if implicit_diff:
         res = _implicit(model, inp, topo, table, res, (pole_limbs, pole_points))
-    return res
+    return res if bad is None else _flag_nonfinite(model, inp, res, bad)
+
+
+def _finite_sets(inp: Inputs):
+    """``(bad (*B,), inputs)``: the sets whose targets (or orientations) hold a NaN or an inf,
+    and the inputs with those replaced by finite stand-ins (so that no NaN enters a solve)."""
+    bad = ~jnp.all(jnp.isfinite(inp.targets), axis=(-2, -1))
+    if inp.orientations is not None:
+        bad = jnp.broadcast_to(bad, inp.batch) | ~jnp.all(jnp.isfinite(inp.orientations), axis=(-2, -1))
+    bad = jnp.broadcast_to(bad, inp.batch)
+    targets = jnp.where(jnp.isfinite(inp.targets), inp.targets, 0.0)
+    orients = inp.orientations
+    if orients is not None:
+        orients = jnp.where(jnp.all(jnp.isfinite(orients), axis=-1, keepdims=True), orients,
+                            jnp.asarray([1.0, 0.0, 0.0, 0.0], orients.dtype))
+    return bad, dataclasses.replace(inp, targets=targets, orientations=orients)
+
+
+def _flag_nonfinite(model, inp: Inputs, res: IKResult, bad) -> IKResult:
+    """``res`` with every set of non-finite targets (``bad (*B,)``, inside ``jit``) at its start
+    pose, ``error`` and ``angle_error`` inf, ``iterations`` 0, not converged, not reachable:
+    finite rotations and a flag no later step can mistake (as :func:`jaxsim.ik.track` does)."""
+    start = jnp.broadcast_to(inp.rotations, res.rotations.shape)
+    P = fk(model, start).positions
+    b1, b2 = bad[..., None], bad[..., None, None]
+    inf = jnp.asarray(jnp.inf, res.error.dtype)
+    return IKResult(rotations=jnp.where(b2, start, res.rotations), positions=jnp.where(b2, P, res.positions),
+                    error=jnp.where(b1, inf, res.error), iterations=jnp.where(bad, 0, res.iterations),
+                    converged=res.converged & ~bad, reachable=res.reachable & ~b1,
+                    trace=None if res.trace is None else jnp.where(b1, inf, res.trace),
+                    angle_error=None if res.angle_error is None else jnp.where(b1, inf, res.angle_error))
 
 
 def _early_or_scan(settings, model, inp: Inputs, topo, table, lean, pole_limbs, pole_points, **kw) -> IKResult:

@@ -83,14 +83,20 @@ def two_bone(root, target, pole, lengths, bend=(0.0, math.pi)) -> TwoBone:
     lo, hi = _check(root, target, pole, lengths, bend)
     root, target, pole = jnp.broadcast_arrays(*(jnp.asarray(x) for x in (root, target, pole)))
     dtype = jnp.result_type(root, target, pole, 0.0)  # the points' float type; integers: the default float
-    root, target, pole = (x.astype(dtype) for x in (root, target, pole))
-    l1, l2 = jnp.asarray(lengths, dtype)[0], jnp.asarray(lengths, dtype)[1]
+    return _two_bone(root.astype(dtype), target.astype(dtype), pole.astype(dtype), jnp.asarray(lengths, dtype),
+                     jnp.asarray(lo, dtype), jnp.asarray(hi, dtype))
+
+
+@jax.jit
+def _two_bone(root, target, pole, lengths, lo, hi) -> TwoBone:
+    """:func:`two_bone` on checked arrays of one float dtype (one compiled program per shape)."""
+    l1, l2 = lengths[0], lengths[1]
     a, t, p = (_quat.unstack(x, axis=-1) for x in (root, target, pole))
     v = _quat.sub(t, a)
     dist = _quat.safe_norm(v)
     side = _quat.sub(p, a)
     u = _quat.normalize(v, _quat.normalize(side, _quat.perpendicular(v)))
-    span = [jnp.sqrt(l1 * l1 + l2 * l2 + 2 * l1 * l2 * math.cos(x)) for x in (hi, lo)]  # smallest, largest
+    span = [jnp.sqrt(l1 * l1 + l2 * l2 + 2 * l1 * l2 * jnp.cos(x)) for x in (hi, lo)]  # smallest, largest
     d = jnp.clip(dist, span[0], span[1])
     # the bend from the law of cosines, by atan2 of (sin, cos) of it: NaN-free where straight
     c = jnp.clip((d * d - l1 * l1 - l2 * l2) / (2 * l1 * l2), -1.0, 1.0)
