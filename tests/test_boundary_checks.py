@@ -201,3 +201,19 @@ def test_zero_start_rotation_under_jit_is_the_identity():
         res = jax.jit(lambda q, f=solver: f(ARM, TARGETS[0], rotations=q, max_iters=30))(jnp.zeros((5, 4)))
         ref = solver(ARM, TARGETS[0], max_iters=30)
         np.testing.assert_allclose(np.asarray(res.positions), np.asarray(ref.positions), atol=1e-12)
+
+
+def test_targets_must_be_real_numbers_and_one_effector_takes_n_by_3():
+    """A string or a complex array is refused, naming it (a string raised from numpy, a
+    complex array lost its imaginary part); with one effector ``(N, 3)`` is N targets, and
+    with several it names the shape it expected."""
+    raises("targets must be real numbers, got 'abc'", ik.solve, ARM, "abc")
+    raises("targets must be real numbers, got an array of complex128", ik.solve, ARM,
+           np.array([0.5, 1.0, 0.2]) + 1j)
+    T = np.asarray(ARM.root) + np.array([[0.6, 0.3, 0.4], [0.5, 0.2, 0.1], [1.0, -0.2, 0.3]])
+    many = ik.solve(ARM, T)
+    assert many.error.shape == (3, 1)
+    np.testing.assert_allclose(many.rotations, ik.solve(ARM, T[:, None]).rotations, atol=0)
+    H = ik.humanoid()
+    raises(r"targets must have shape \(\.\.\., 4, 3\) .* give \(3, 4, 3\)", ik.solve, H, T,
+           effectors=ik.HUMANOID_EFFECTORS)

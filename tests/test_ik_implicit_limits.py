@@ -119,3 +119,22 @@ def test_gradients_finite_at_a_straight_arm_on_its_bound():
     f = jax.jit(jax.grad(lambda t: jnp.sum(ik.solve(arm, t, solver=dataclasses.replace(LM, implicit_diff=True)).positions ** 2)))
     for t in (np.array([2.0, 0.0, 0.0]), np.array([3.0, 0.0, 0.0]), np.array([1.5, 0.3, 0.0])):
         assert np.all(np.isfinite(np.asarray(f(t)))), t
+
+
+def test_lm_stops_at_a_stationary_point_and_flags_one_it_did_not_reach():
+    """LM ends on a projected-gradient test: the planar arm held on its bound (its target
+    out of reach) stops once no descent direction is left, long before 300 iterations,
+    with ``stationary`` True and its implicit derivative that of the constrained minimum
+    (the finite-difference check above).  A humanoid hand pulled 2 m out of reach is not
+    stationary after LM's default 100 iterations: the result says so, so an implicit
+    derivative taken there is flagged, not silently off."""
+    arm = planar_arm()
+    r = ik.solve(arm, np.array([0.2, 1.6, 0.1]), solver=LM)
+    assert bool(r.stationary) and not bool(r.converged) and int(r.iterations) < 50
+    H = ik.humanoid(np.float64)
+    eff = ik.HUMANOID_EFFECTORS
+    rest = np.asarray(ik.fk(H).positions)[[H.index(e) for e in eff]]
+    far = rest + np.array([[0.0, 2.0, 1.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    h = ik.solve(H, far, effectors=eff, solver=ik.LevenbergMarquardt(implicit_diff=True))
+    assert not bool(h.converged) and not bool(h.stationary) and int(h.iterations) == 100
+    assert ik.solve(arm, np.array([0.2, 1.6, 0.1]), solver=ik.FABRIK()).stationary is None  # LM only

@@ -30,7 +30,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 from jax import lax
-from .linsolve import cho_solve_lower, lower_cholesky
+from .._cholesky import cho_solve_lower, lower_cholesky
 
 
 #: A float64 coarse matrix is factored in float32, shifted where needed so that an upper

@@ -34,6 +34,7 @@ import numpy as np
 
 from ..._dataclass import pytree_dataclass
 from ..._dtype import tiny
+from .._barrier import _d, barrier, barrier_slope  # noqa: F401 (self-contact and the tests use them here too)
 from .._vec import dot, length
 
 #: IPC's friction smoothing velocity ``eps_v`` (m/s) per dtype: tangential speeds below it
@@ -45,22 +46,6 @@ from .._vec import dot, length
 #: ``mu lambda`` against ``rtol = 1e-4``, and Newton stalls (docs/notebook.md, "float32
 #: friction").
 FRICTION_EPS_V = {np.dtype(np.float32): 1e-3, np.dtype(np.float64): 1e-4}
-
-
-def barrier(d, dhat):
-    """IPC's ``b(d)`` (m^2): ``-(d - dhat)^2 log(d / dhat)`` on ``(0, dhat)``, 0 beyond,
-    ``+inf`` at ``d <= 0``; NaN-free gradient everywhere (double ``where``)."""
-    active = (d > 0) & (d < dhat)
-    ds = jnp.where(active, d, dhat)
-    val = -(ds - dhat) ** 2 * jnp.log(ds / dhat)
-    return jnp.where(d > 0, jnp.where(active, val, 0.0), jnp.inf)
-
-
-def barrier_slope(d, dhat):
-    """``b'(d)`` (m), ``<= 0``: ``-(d - dhat)(2 log(d/dhat) + (d - dhat)/d)`` on ``(0, dhat)``."""
-    active = (d > 0) & (d < dhat)
-    ds = jnp.where(active, d, dhat)
-    return jnp.where(active, -(ds - dhat) * (2.0 * jnp.log(ds / dhat) + (ds - dhat) / ds), 0.0)
 
 
 def f0(y2, eps_h):
@@ -221,13 +206,6 @@ def friction_energy(u, cloth, ct: ContactTerms):
 def potential(u, x0, cloth, ct: ContactTerms, free):
     """Contact part of the step's potential (J)."""
     return barrier_energy(u, x0, cloth, ct, free) + friction_energy(u, cloth, ct)
-
-
-def _d(f, order):
-    """Elementwise ``order``-th derivative of a scalar function ``f(x, c)`` in ``x``."""
-    for _ in range(order):
-        f = jax.grad(f)
-    return jnp.vectorize(f, excluded={1})
 
 
 def blocks(u, x0, cloth, ct: ContactTerms, free):

@@ -23,20 +23,6 @@ def dense_solve(H, b):
 
 
 @jax.custom_batching.sequential_vmap
-def lower_cholesky(A):
-    """The lower Cholesky factor of ``A (n, n)`` (NaN if not SPD); batched one matrix
-    after another (:func:`dense_solve`)."""
-    return lax.linalg.cholesky(A, symmetrize_input=False)
-
-
-@jax.custom_batching.sequential_vmap
-def cho_solve_lower(L, b):
-    """``A^-1 b`` from the lower Cholesky factor ``L (n, n)`` of ``A``; batched one
-    matrix after another (:func:`dense_solve`)."""
-    return jax.scipy.linalg.cho_solve((L, True), b)
-
-
-@jax.custom_batching.sequential_vmap
 def lu_solve(A, b):
     """Solve ``A x = b`` by LU with partial pivoting (``A`` nonsingular, ``(n, n)``);
     batched one matrix after another (:func:`dense_solve`)."""

@@ -18,7 +18,7 @@ import numpy as np
 
 from .aggregates import block_grid
 from .stencil import Stencil
-from .._implicit.linsolve import cho_solve_lower
+from .._cholesky import cho_solve_lower
 
 
 def to_planes(st: Stencil, v):

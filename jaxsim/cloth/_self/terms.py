@@ -15,7 +15,7 @@ import jax
 import jax.numpy as jnp
 
 from ..._dataclass import pytree_dataclass, static_field
-from .._implicit.contact import _d, barrier, barrier_slope
+from .._barrier import _d, barrier, barrier_slope
 from .._rank_one import RankOne
 from .broadphase import append
 from . import ccd

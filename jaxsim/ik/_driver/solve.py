@@ -126,7 +126,8 @@ def _flag_nonfinite(model, inp: Inputs, res: IKResult, bad) -> IKResult:
                     error=jnp.where(b1, inf, res.error), iterations=jnp.where(bad, 0, res.iterations),
                     converged=res.converged & ~bad, reachable=res.reachable & ~b1,
                     trace=None if res.trace is None else jnp.where(b1, inf, res.trace),
-                    angle_error=None if res.angle_error is None else jnp.where(b1, inf, res.angle_error))
+                    angle_error=None if res.angle_error is None else jnp.where(b1, inf, res.angle_error),
+                    stationary=None if res.stationary is None else res.stationary & ~bad)
 
 
 def _early_or_scan(settings, model, inp: Inputs, topo, table, lean, pole_limbs, pole_points, **kw) -> IKResult:
@@ -222,4 +223,4 @@ def _implicit(model, inp: Inputs, topo, table, res: IKResult, poles=((), None)) 
     err = jnp.sqrt(jnp.sum((P[..., list(inp.effectors), :] - tg) ** 2, axis=-1))
     ang = None if orients is None else angle_errors(pose.rotations, inp.effectors, orients)
     return IKResult(rotations=local, positions=P, error=err, iterations=res.iterations, converged=res.converged,
-                    reachable=res.reachable, trace=res.trace, angle_error=ang)
+                    reachable=res.reachable, trace=res.trace, angle_error=ang, stationary=res.stationary)

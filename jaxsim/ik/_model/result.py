@@ -33,6 +33,11 @@ class IKResult:
         angle errors.
       angle_error: ``(E,)`` angle (rad) between each effector's frame and its target
         orientation, or ``None`` without orientation targets.
+      stationary: Levenberg–Marquardt only (else ``None``): ``()`` bool, converged, or
+        stopped at a stationary point of its least squares within the limits (no descent
+        direction left; ``_solvers.lm.is_stationary``).  False means it ran out of
+        iterations on the way: its pose is not a minimum, and an implicit derivative
+        (``implicit_diff=True``, which assumes one) is not that of a solution.
     """
 
     rotations: jax.Array
@@ -43,3 +48,4 @@ class IKResult:
     reachable: jax.Array
     trace: jax.Array | None
     angle_error: jax.Array | None = None
+    stationary: jax.Array | None = None

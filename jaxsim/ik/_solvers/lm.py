@@ -67,6 +67,8 @@ class LMState:
       cost: ``()`` squared residual norm of the current pose.
       sq_error: ``()`` squared worst effector error of the current pose.
       positions, frames: ``(J, 3)`` and ``(J, 4)``, the current pose's FK.
+      stationary: ``()`` bool, the last sweep found the pose it started from stationary
+        (:func:`is_stationary`): LM stops there, short of ``tol``.
     """
 
     rotations: jax.Array
@@ -75,6 +77,7 @@ class LMState:
     sq_error: jax.Array
     positions: jax.Array
     frames: jax.Array
+    stationary: jax.Array
 
 
 def _aligned_root(topo, offsets, L, P, G, prob: LMProblem, moved):
@@ -95,6 +98,24 @@ def _aligned_root(topo, offsets, L, P, G, prob: LMProblem, moved):
     Pt, Gt = fk_stacked(topo.parents, offsets, turned)
     ok = jnp.sum(_residual_at(topo, Pt, Gt, prob)[0] ** 2) < jnp.sum(_residual_at(topo, P, G, prob)[0] ** 2)
     return jnp.where(ok, turned, L), jnp.where(ok, Pt, P), jnp.where(ok, Gt, G)
+
+
+#: A pose is stationary where its projected gradient ``|J^T r|`` (the bounds it is held on
+#: removed) is at most ``STATIONARY sqrt(eps)`` times ``|J| |r|`` (Frobenius and Euclidean
+#: norms: a cosine, scale-free).  LM's accept test compares costs, which rounding blurs at
+#: about ``sqrt(eps)`` relative gradient: the planar arm held on its bound ends at 1.2e-9 in
+#: float64 (sqrt(eps) = 1.5e-8) and stays there for hundreds of iterations.
+STATIONARY = 4.0
+
+
+def is_stationary(Jac, r):
+    """``()`` bool: ``|J^T r| <= STATIONARY sqrt(eps) |J| |r|`` (``Jac (m, n)`` with the held
+    bounds' motions removed, ``r (m,)``): no descent direction is left inside the limits, to
+    rounding, the first-order condition of the constrained least-squares minimum."""
+    dtype = Jac.dtype
+    rtol2 = STATIONARY * STATIONARY * float(jnp.finfo(dtype).eps)
+    g2 = jnp.sum((Jac.T @ r) ** 2)
+    return g2 <= rtol2 * jnp.sum(Jac * Jac) * jnp.sum(r * r) + jnp.finfo(dtype).tiny
 
 
 #: Systems up to this size are solved by :func:`spd_solve`'s unrolled Cholesky, larger ones by LAPACK.
@@ -163,17 +184,18 @@ def _lm_start(offsets, targets, local0, weights, table, orients, orient_weights,
         ok = (jnp.sum(r1 * r1) < jnp.sum(r0 * r0)) & limbs
         L0, P0, G0, r0, e0 = (jnp.where(ok, a, b) for a, b in ((L1, L0), (P1, P0), (G1, G0), (r1, r0), (e1, e0)))
     return LMItem(LMState(rotations=L0, damping=jnp.asarray(damping, dtype), cost=jnp.sum(r0 * r0), sq_error=e0,
-                          positions=P0, frames=G0), prob)
+                          positions=P0, frames=G0, stationary=jnp.zeros((), bool)), prob)
 
 
 def _lm_sweep(s: LMState, prob: LMProblem, offsets, table, *, topo):
-    """One LM iteration: ``(new state, its squared worst error)``."""
+    """One LM iteration: ``(new state, its squared worst error, the start pose was stationary)``."""
     dtype = offsets.dtype
     dofs = _dofs(topo, table, prob.orients is not None)
     n = dofs.n
     Jac, r = jacobian_at(topo, s.positions, s.frames, prob, dofs, table)
     if table is not None:  # the bounds that descent would push the pose out of are held
         Jac = hold_bounds(Jac, s.rotations, -(Jac.T @ r), dofs, table)
+    flat = is_stationary(Jac, r)
     # (J^T J + mu I)^-1 J^T = J^T (J J^T + mu I)^-1: the smaller of the two systems
     # (m rows against n parameters, static), the same step.
     m = Jac.shape[0]
@@ -191,8 +213,8 @@ def _lm_sweep(s: LMState, prob: LMProblem, offsets, table, *, topo):
     new = LMState(rotations=jnp.where(ok, trial, s.rotations),
                   damping=jnp.clip(jnp.where(ok, s.damping / 3, s.damping * 4), lam_min, LAMBDA_MAX),
                   cost=jnp.where(ok, ct, s.cost), sq_error=jnp.where(ok, et, s.sq_error),
-                  positions=jnp.where(ok, Pt, s.positions), frames=jnp.where(ok, Gt, s.frames))
-    return new, new.sq_error
+                  positions=jnp.where(ok, Pt, s.positions), frames=jnp.where(ok, Gt, s.frames), stationary=flat)
+    return new, new.sq_error, flat
 
 
 def lm_one(offsets, targets, local0, weights, tol, table, orients, orient_weights, damping, limbs=False, swivel=None, *,
@@ -228,7 +250,8 @@ def _result(topo, offsets, s: LMState, prob: LMProblem, tol, iters, errs) -> IKR
         ok = ok & jnp.all(jnp.sum(_pole_residuals(P, prob) ** 2, axis=-1) <= tol * tol)
     tgt = [_quat.unstack(t) for t in prob.targets]
     return IKResult(rotations=L, positions=P, error=err, iterations=iters, converged=ok,
-                    reachable=reachable_flags(topo, offsets, tgt, ()), trace=errs, angle_error=ang)
+                    reachable=reachable_flags(topo, offsets, tgt, ()), trace=errs, angle_error=ang,
+                    stationary=ok | s.stationary)
 
 
 #: Batches of at least this many sets solved with ``early_exit`` (and no trace) run as a work
@@ -300,8 +323,8 @@ def run_lm(offsets, targets, local0, weights, tol, table, orients, orient_weight
                                            poles)
 
     def sweep(it: LMItem):
-        new, e2 = _lm_sweep(it.state, it.prob, offsets, table, topo=topo)
-        return LMItem(new, it.prob), e2
+        new, e2, flat = _lm_sweep(it.state, it.prob, offsets, table, topo=topo)
+        return LMItem(new, it.prob), e2, flat
 
     def restart(items: LMItem, k):
         def one(p: LMProblem, L0, sw):

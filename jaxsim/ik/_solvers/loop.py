@@ -75,13 +75,20 @@ def run_plan(plan: SweepPlan, tol, *, max_iters, trace, early_exit):
     return plan.rotations(state), iters, errs
 
 
+def _swept(out):
+    """``(state, sq_error, stop)`` of a sweep's ``(state, sq_error)`` or ``(state, sq_error, stop)``."""
+    return (out[0], out[1], out[2]) if len(out) == 3 else (out[0], out[1], None)
+
+
 def masked_sweeps(sweep, state0, err0, iters0, done0, tol, *, max_iters, trace, early_exit, freeze="where",
                   keep_best=False):
     """Run up to ``max_iters`` sweeps.
 
     Args:
       sweep: ``state -> (new_state, sq_error)``, ``sq_error`` of batch shape ``B``: the
-        squared error (the worst effector's) of the pose after the sweep.
+        squared error (the worst effector's) of the pose after the sweep; or
+        ``(new_state, sq_error, stop)``, with ``stop`` a ``B``-shaped bool that ends an
+        element short of ``tol`` too (LM at a stationary point).
       state0: the start state (a pytree of ``B``-shaped arrays).
       err0, iters0, done0: ``B``-shaped start error, sweep count and done flags.
       tol: scalar tolerance on the error.
@@ -114,11 +121,13 @@ def masked_sweeps(sweep, state0, err0, iters0, done0, tol, *, max_iters, trace, 
         snap, state = c.snap, c.state
         if snapshot:  # ``pend``: the state met ``tol`` at the previous sweep
             snap = _quat.where(c.pend, state, snap)
-        new, e2 = sweep(state)
+        new, e2, stop = _swept(sweep(state))
         err = c.err
         if trace:  # the error is carried only when a per-sweep trace is asked for
             err = jnp.where(c.done, err, _quat.safe_sqrt(e2))
         hit = ~c.done & (e2 <= tol2)
+        if stop is not None:  # the sweep's own test (LM: a stationary point) ends it too
+            hit = hit | (~c.done & stop)
         best, best_e2 = c.best, c.best_e2
         if keep_best:
             better = ~c.done & (e2 < best_e2)
@@ -223,8 +232,9 @@ def refill_sweeps(sweep, items0, e2_0, tol, *, max_iters, lanes, seeds=1, restar
     its count is the sweeps of every start it ran.  Extra starts cost only where the first fails.
 
     Args:
-      sweep: ``items (W, ...) -> (items, sq_error (W,))``, lane by lane (vmapped); an item
-        carries its problem data as well as its state.
+      sweep: ``items (W, ...) -> (items, sq_error (W,))`` (or with a third ``stop (W,)``,
+        as for :func:`masked_sweeps`: a start that stops short of ``tol`` goes on to the next
+        seed), lane by lane (vmapped); an item carries its problem data as well as its state.
       items0: the start items, a pytree with leading axis ``N``; e2_0: ``(N,)`` their squared errors.
       tol: scalar tolerance; max_iters (per start), lanes (``<= N``), seeds: static.
       restart: ``(items (W, ...), k (W,)) -> items``, the items started afresh from start ``k``.
@@ -259,10 +269,10 @@ def refill_sweeps(sweep, items0, e2_0, tol, *, max_iters, lanes, seeds=1, restar
 
     def body(c: _QueueCarry) -> _QueueCarry:
         active = c.lane < N if c.wait is None else (c.lane < N) & ~c.wait
-        new, e2 = sweep(c.items)
+        new, e2, stop = _swept(sweep(c.items))
         iters, total = c.iters + active.astype(jnp.int32), c.total + active.astype(jnp.int32)
         hit = e2 <= tol2
-        ended = active & (hit | (iters >= max_iters))
+        ended = active & (hit | (iters >= max_iters) | (False if stop is None else stop))
         mark = c.mark
         if mark is not None:  # a start whose error has not fallen enough in `every` sweeps ends
             every, ratio = stall

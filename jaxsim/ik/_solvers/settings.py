@@ -74,20 +74,7 @@ class CCD(_Sweeps):
     Attributes:
       max_iters: sweeps scanned (static; a new value recompiles).
       tol: converged when every effector is within ``tol`` of its target (scene units).
-      early_exit: ``None`` (the default): the sweeps stop once every element of the
-        batch is done (a ``lax.while_loop``, or LM's work queue), and where the call is
-        differentiated (``jax.grad``, ``jax.jvp``, even through a ``jit``) the derivative
-        and the value come from the fixed-length ``lax.scan`` of masked no-ops, which JAX
-        can reverse-differentiate (a ``custom_jvp``).  ``True``: always the early loop
-        (forward mode only; ``jax.grad`` raises).  ``False``: always the scan.
-      trace: also return ``trace (..., max_iters)``, the worst effector's error after
-        each sweep (off by default to save memory).
-      implicit_diff: differentiate the returned solution by the implicit function
-        theorem (``ik._driver.implicit``) instead of through the sweeps: no memory per
-        sweep, least-change rotations derivative; with limits the bounds the solution
-        sits on are held.
-      unroll: chains: unroll the loop over joints (default: ``J <= 16`` and a batch of
-        >= 256), else a ``fori_loop``.  Other trees are unrolled over their static joints.
+      early_exit, trace, implicit_diff, unroll: as for :class:`FABRIK`.
     """
 
 
@@ -105,18 +92,8 @@ class LevenbergMarquardt(_Settings):
         (else the closest), and ``iterations`` counts them all (``starts``).  With
         ``early_exit`` on 128 or more sets the starts run one after another, each only
         where the earlier ones failed or stalled (``lm.run_lm``).
-      early_exit: ``None`` (the default): the sweeps stop once every element of the
-        batch is done (a ``lax.while_loop``, or LM's work queue), and where the call is
-        differentiated (``jax.grad``, ``jax.jvp``, even through a ``jit``) the derivative
-        and the value come from the fixed-length ``lax.scan`` of masked no-ops, which JAX
-        can reverse-differentiate (a ``custom_jvp``).  ``True``: always the early loop
-        (forward mode only; ``jax.grad`` raises).  ``False``: always the scan.
-      trace: also return ``trace (..., max_iters)``, the worst effector's error after
-        each sweep (off by default to save memory).
-      implicit_diff: differentiate the returned solution by the implicit function
-        theorem (``ik._driver.implicit``) instead of through the sweeps: no memory per
-        sweep, least-change rotations derivative; with limits the bounds the solution
-        sits on are held.
+      early_exit, trace, implicit_diff: as for :class:`FABRIK` (``early_exit=None`` runs
+        128 sets or more as the work queue).
     """
 
     damping: float = 1e-2

@@ -91,4 +91,4 @@ def best_of(res: IKResult, n: int, seeds: int) -> IKResult:
     out = jax.tree_util.tree_map(take, split)
     return IKResult(rotations=out.rotations, positions=out.positions, error=out.error,
                     iterations=jnp.sum(split.iterations, axis=1), converged=out.converged, reachable=out.reachable,
-                    trace=out.trace, angle_error=out.angle_error)
+                    trace=out.trace, angle_error=out.angle_error, stationary=out.stationary)
