@@ -62,7 +62,7 @@ c = C.grid(31, 1.0 / 31, origin=(-0.5, 0.95, -0.5), mass=0.25 / 1024, stiffness=
            pins=[], colliders=(ball,))
 s0 = C.State.at_rest(c)
 """, "C.rollout(c, s0, 1 / 60, 10)"),
-    "cloth self-contact, two 8x8 layers, 10 steps": (10.0, """
+    "cloth self-contact, two 8x8 layers, 10 steps": (None, """
 import numpy as np
 from jaxsim import cloth as C
 top = C.grid(7, 1 / 7, origin=(-0.5, 0.98, -0.5)).rest

@@ -48,7 +48,8 @@ class Cloth:
         edge–edge) a step may see (default ``8 N``); a step that finds more says so in
         ``StepInfo.pair_overflow`` and is not converged.
       wind: ``(3,)`` the air's velocity (m/s), or ``None`` (still air); ``rollout(wind=)``
-        gives one per step.
+        gives one per step.  A non-zero wind with neither ``drag`` nor ``lift`` given
+        raises (it would move nothing); with both given as 0 the scene is still on purpose.
       drag, lift: ``()`` the triangles' aerodynamic drag and lift coefficients
         ``rho C / 2`` (kg/m^3), >= 0, or ``None`` (0) (``_model.aero``); they act on the
         ``contact_faces`` triangles.
