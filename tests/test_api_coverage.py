@@ -19,7 +19,7 @@ MODULES = {"jaxsim": jaxsim, "ik": ik, "cloth": cloth, "anim": anim, "curves": c
 
 def _public():
     names = {f"{m}.{n}" for m, mod in MODULES.items() for n in mod.__all__ if _is_function(getattr(mod, n))}
-    names |= {f"optim.{n}" for n in ("adam", "levenberg_marquardt")}
+    names |= {f"optim.{n}" for n in ("adam", "levenberg_marquardt") if _is_function(getattr(optim, n))}
     return names
 
 

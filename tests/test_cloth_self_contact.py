@@ -473,6 +473,18 @@ def _check_frames(states, c):
     assert not bad, f"frames {bad} intersect"
 
 
+def test_a_self_contact_rollout_keeps_two_small_layers_apart():
+    """The fast tier's self-contact rollout: two 3x3-cell layers dropped onto a sphere
+    (float32 defaults) for 0.5 s; the upper one lands on the lower one, no frame has two
+    triangles crossing (the independent check), and every step is taken and converged."""
+    sphere = C.Sphere(center=(0.0, 0.25, 0.0), radius=0.25)
+    c = _two_layers(n=3, colliders=(sphere,), dtype=np.float32, self_contact=True)
+    states, info = C.rollout(c, C.State.at_rest(c), DT, 30)
+    _check_frames(states, c)
+    assert bool(np.all(info.stable)) and bool(np.all(info.converged)) and not bool(np.any(info.pair_overflow))
+    assert _min_gap(states.x[-1], c) < 2 * float(c.contact_gap)  # they met
+
+
 @pytest.mark.slow
 def test_two_layers_on_a_sphere_never_intersect():
     """Two layers dropped onto a sphere (float32, the default dtype's scene): the upper
