@@ -68,7 +68,10 @@ class LMState:
       sq_error: ``()`` squared worst effector error of the current pose.
       positions, frames: ``(J, 3)`` and ``(J, 4)``, the current pose's FK.
       stationary: ``()`` bool, the last sweep found the pose it started from stationary
-        (:func:`is_stationary`): LM stops there, short of ``tol``.
+        (:func:`is_stationary`) after ``STUCK`` trial steps in a row that did not lower the
+        cost: LM stops there, short of ``tol`` (a stationary pose whose steps still gain
+        goes on).
+      rejected: ``()`` int32, trial steps rejected in a row.
     """
 
     rotations: jax.Array
@@ -78,6 +81,7 @@ class LMState:
     positions: jax.Array
     frames: jax.Array
     stationary: jax.Array
+    rejected: jax.Array
 
 
 def _aligned_root(topo, offsets, L, P, G, prob: LMProblem, moved):
@@ -106,6 +110,10 @@ def _aligned_root(topo, offsets, L, P, G, prob: LMProblem, moved):
 #: about ``sqrt(eps)`` relative gradient: the planar arm held on its bound ends at 1.2e-9 in
 #: float64 (sqrt(eps) = 1.5e-8) and stays there for hundreds of iterations.
 STATIONARY = 4.0
+#: ... and LM stops there once this many trial steps in a row have not lowered the cost (its
+#: damping grown 4x each): one rejection is routine on the way to a minimum, three at a
+#: stationary pose mean rounding has the last word.
+STUCK = 3
 
 
 def is_stationary(Jac, r):
@@ -184,7 +192,8 @@ def _lm_start(offsets, targets, local0, weights, table, orients, orient_weights,
         ok = (jnp.sum(r1 * r1) < jnp.sum(r0 * r0)) & limbs
         L0, P0, G0, r0, e0 = (jnp.where(ok, a, b) for a, b in ((L1, L0), (P1, P0), (G1, G0), (r1, r0), (e1, e0)))
     return LMItem(LMState(rotations=L0, damping=jnp.asarray(damping, dtype), cost=jnp.sum(r0 * r0), sq_error=e0,
-                          positions=P0, frames=G0, stationary=jnp.zeros((), bool)), prob)
+                          positions=P0, frames=G0, stationary=jnp.zeros((), bool),
+                          rejected=jnp.zeros((), jnp.int32)), prob)
 
 
 def _lm_sweep(s: LMState, prob: LMProblem, offsets, table, *, topo):
@@ -209,12 +218,15 @@ def _lm_sweep(s: LMState, prob: LMProblem, offsets, table, *, topo):
     rt, et = _residual_at(topo, Pt, Gt, prob)
     ct = jnp.sum(rt * rt)
     ok = ct < s.cost
+    rejected = jnp.where(ok, 0, s.rejected + 1)
+    stuck = flat & (rejected >= STUCK)  # stationary, and steps no longer lower the cost: a minimum to rounding
     lam_min = LAMBDA_MIN_EPS * jnp.finfo(dtype).eps
     new = LMState(rotations=jnp.where(ok, trial, s.rotations),
                   damping=jnp.clip(jnp.where(ok, s.damping / 3, s.damping * 4), lam_min, LAMBDA_MAX),
                   cost=jnp.where(ok, ct, s.cost), sq_error=jnp.where(ok, et, s.sq_error),
-                  positions=jnp.where(ok, Pt, s.positions), frames=jnp.where(ok, Gt, s.frames), stationary=flat)
-    return new, new.sq_error, flat
+                  positions=jnp.where(ok, Pt, s.positions), frames=jnp.where(ok, Gt, s.frames), stationary=stuck,
+                  rejected=rejected)
+    return new, new.sq_error, stuck
 
 
 def lm_one(offsets, targets, local0, weights, tol, table, orients, orient_weights, damping, limbs=False, swivel=None, *,
