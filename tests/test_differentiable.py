@@ -141,3 +141,22 @@ def test_cloth_gradients_finite_at_zero_length_spring_and_fully_pinned():
 # Inverse problems 2 (stiffness and damping from motion, within 1%) and 3 (control of the
 # free corner, to 1e-7 m) run at full size in notebooks/03_differentiable.ipynb, whose cells
 # assert those targets; tests/test_notebooks.py executes it.
+
+
+def test_the_default_early_loop_differentiates_as_the_scan():
+    """``early_exit=None`` (the default): undifferentiated, the sweeps run in a while loop; under
+    ``jax.grad`` (also through a ``jit``, which hides the grad from the boundary) and ``jax.jvp``
+    the value and derivative are the fixed-length scan's."""
+    arm = ik.lab_arm()
+    t = jnp.asarray(np.asarray(arm.root) + np.array([[0.6, 0.3, 0.4], [0.5, -0.2, 0.9]]))
+
+    def end(settings):
+        return lambda tt: jnp.sum(ik.solve(arm, tt, solver=settings).positions[:, -1] ** 2)
+
+    default, scan = end(ik.FABRIK(40, 1e-9)), end(ik.FABRIK(40, 1e-9, early_exit=False))
+    prims = {e.primitive.name for e in jax.make_jaxpr(default)(t).jaxpr.eqns}
+    assert "custom_jvp_call" in prims
+    np.testing.assert_allclose(jax.jit(default)(t), scan(t), rtol=1e-12)
+    np.testing.assert_allclose(jax.grad(jax.jit(default))(t), jax.grad(scan)(t), rtol=1e-10, atol=1e-12)
+    v = jnp.ones_like(t)
+    np.testing.assert_allclose(jax.jvp(default, (t,), (v,))[1], jax.jvp(scan, (t,), (v,))[1], rtol=1e-10)
