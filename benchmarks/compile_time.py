@@ -91,13 +91,13 @@ t0 = time.perf_counter()
 setup_s = time.perf_counter() - t0
 before = json.loads(json.dumps(stats))
 t0 = time.perf_counter(); jax.block_until_ready({call}); first = time.perf_counter() - t0
-during = {{k: [stats[k][0] - before[k][0], stats[k][1] - before[k][1]] for k in stats}}
+during = {k: [stats[k][0] - before[k][0], stats[k][1] - before[k][1]] for k in stats}
 warm = []
 for _ in range(3):
     t0 = time.perf_counter(); jax.block_until_ready({call}); warm.append(time.perf_counter() - t0)
 warm = sorted(warm)[1]
-print("RESULT " + json.dumps({{"setup_s": setup_s, "first_s": first, "warm_s": warm, "compile_s": max(first - warm, 0.0),
-                              "jax": {{k: {{"count": v[0], "seconds": round(v[1], 3)}} for k, v in during.items()}}}}))
+print("RESULT " + json.dumps({"setup_s": setup_s, "first_s": first, "warm_s": warm, "compile_s": max(first - warm, 0.0),
+                              "jax": {k: {"count": v[0], "seconds": round(v[1], 3)} for k, v in during.items()}}))
 """
 
 
@@ -106,7 +106,7 @@ def run_case(name: str) -> dict:
     env = dict(os.environ)
     env.pop("JAX_COMPILATION_CACHE_DIR", None)
     env["JAX_ENABLE_COMPILATION_CACHE"] = "false"
-    code = CHILD.replace("{setup}", setup.strip()).replace("{call}", call).replace("{{", "{").replace("}}", "}")
+    code = CHILD.replace("{setup}", setup.strip()).replace("{call}", call)
     t0 = time.perf_counter()
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
     wall = time.perf_counter() - t0

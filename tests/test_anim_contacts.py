@@ -98,7 +98,7 @@ def test_values_that_would_be_reinterpreted_are_refused():
     for kw, match in ((dict(floor="x"), "floor must be a real number, got 'x'"),
                       (dict(floor=np.nan), "floor must be finite"), (dict(floor=-np.inf), "floor must be finite"),
                       (dict(release=np.inf), "release must be finite"),
-                      (dict(min_frames=True), "min_frames must be an integer"), (dict(up=True), "up must be")):
+                      (dict(min_frames=True), "min_frames must be an int, got True"), (dict(up=True), "up must be")):
         with pytest.raises(ValueError, match=match):
             anim.foot_contacts(m, "foot", **kw)
     with pytest.raises(ValueError, match="feet must be joint names or indices"):

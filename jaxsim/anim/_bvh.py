@@ -264,8 +264,7 @@ def write_bvh(path, motion: Motion, order: str | None = None, scale: float = 1.0
     """
     if order is not None and order not in ORDERS:
         raise ValueError(f"order must be one of {ORDERS} or None, got {order!r}")
-    scale = check_real("scale", scale, minimum=0.0, strict=True)
-    check_real("frame_time", motion.frame_time, minimum=0.0, strict=True)
+    scale = check_real("scale", scale, minimum=0.0, strict=True)  # (Motion checked its frame_time)
     sk = motion.skeleton
     J, T = sk.num_joints, motion.num_frames
     names = sk.names or tuple(f"joint{i}" for i in range(J))

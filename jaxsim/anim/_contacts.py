@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validate import check_real
+from .._validate import check_int, check_real
 from ._motion import Motion, positions
 
 
@@ -37,11 +37,13 @@ def contact_mask(contacts, shape: tuple) -> np.ndarray:
     c = np.asarray(contacts)
     if c.shape != shape:
         raise ValueError(f"contacts must have shape {shape}, got {c.shape}")
-    if c.dtype != bool:
-        if not (np.issubdtype(c.dtype, np.number) and np.all((c == 0) | (c == 1))):
-            bad = c.ravel()[np.flatnonzero(~((c == 0) | (c == 1)).ravel())[0]] if np.issubdtype(c.dtype, np.number) \
-                else c.dtype
-            raise ValueError(f"contacts must be bools (or 0 and 1), got {bad!r}")
+    if c.dtype == bool:
+        return c
+    if not np.issubdtype(c.dtype, np.number):
+        raise ValueError(f"contacts must be bools (or 0 and 1), got {c.dtype!r}")
+    other = (c != 0) & (c != 1)
+    if other.any():
+        raise ValueError(f"contacts must be bools (or 0 and 1), got {c[other][0]!r}")
     return c.astype(bool)
 
 
@@ -69,8 +71,7 @@ def foot_contacts(motion: Motion, feet, *, height: float = 0.05, speed: float = 
     for name, v in (("height", height), ("speed", speed)):
         _check(name, v)
     release = check_real("release", release, minimum=1.0)
-    if not (isinstance(min_frames, (int, np.integer)) and not isinstance(min_frames, bool) and min_frames >= 1):
-        raise ValueError(f"min_frames must be an integer >= 1, got {min_frames!r}")
+    check_int("min_frames", min_frames, 1)
     if floor is not None:
         floor = check_real("floor", floor)
     if isinstance(up, bool) or up not in (0, 1, 2):

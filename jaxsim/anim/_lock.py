@@ -13,6 +13,7 @@ import numpy as np
 
 from .._dataclass import pytree_dataclass
 from .._geometry import quat as _quat
+from .._validate import check_int
 from ..ik._solvers.two_bone import two_bone
 from ._contacts import _joints, contact_mask, contact_spans, foot_contacts
 from ._motion import Motion, _fk, _offsets
@@ -171,8 +172,7 @@ def lock_feet(motion: Motion, feet, contacts=None, *, blend: int = 6, up: int = 
     legs = _legs(motion, feet)
     if isinstance(up, bool) or up not in (0, 1, 2):
         raise ValueError(f"up must be 0, 1 or 2, got {up!r}")
-    if not (isinstance(blend, (int, np.integer)) and not isinstance(blend, bool) and blend >= 0):
-        raise ValueError(f"blend must be an integer >= 0, got {blend!r}")
+    blend = check_int("blend", blend, 0)
     if contacts is None:
         contacts = foot_contacts(motion, feet)
     contacts = contact_mask(contacts, (motion.num_frames, len(legs)))

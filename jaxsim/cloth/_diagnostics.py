@@ -46,7 +46,7 @@ def energy_report(cloth: Cloth, state0: State, states: State, infos) -> EnergyRe
         for field in ("x", "v"):
             got = tuple(jnp.shape(getattr(st, field, None)))
             if len(got) != len(shape) or any(w is not None and g != w for g, w in zip(got, shape)):
-                want = "(T, " + f"{N}, 3)" if shape[0] is None else f"({N}, 3)"
+                want = "(" + ", ".join("T" if s is None else str(s) for s in shape) + ")"
                 raise ValueError(f"energy_report: {name}.{field} must be {want} for this scene's {N} particles, got "
                                  f"{got} (states of another scene?)")
     T = jnp.shape(states.x)[0]

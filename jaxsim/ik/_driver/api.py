@@ -9,11 +9,6 @@ from .._model.result import IKResult
 from .._solvers.settings import CCD, FABRIK, resolve_settings
 from .solve import solve_ik
 
-#: The options that moved onto the settings objects (``FABRIK(early_exit=...)``); ``solve``
-#: still takes them for one release, with a ``DeprecationWarning``.
-MOVED = ("trace", "unroll", "early_exit", "implicit_diff")
-
-
 def _moved(settings, moved: dict):
     """``settings`` with the options given to ``solve`` the old way (a warning names the new spelling)."""
     given = {k: v for k, v in moved.items() if v is not None and not (k in ("trace", "implicit_diff") and v is False)}

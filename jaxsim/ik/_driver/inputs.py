@@ -100,7 +100,7 @@ def _orientations(dtype, orientations, orientation_weights, E):
 def _targets_array(targets, dtype):
     """``targets`` as a real array of ``dtype``: ``ValueError`` naming them for a string or other
     non-numeric value, or complex numbers (whose imaginary part a cast would drop)."""
-    if isinstance(targets, jax.Array) or isinstance(targets, jax.core.Tracer):
+    if isinstance(targets, (jax.Array, jax.core.Tracer)):
         kind = targets.dtype
     else:
         try:

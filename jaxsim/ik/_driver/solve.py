@@ -87,8 +87,8 @@ def solve_ik(settings, model, targets, *, rotations=None, effectors=None, weight
         return jax.tree_util.tree_map(lambda a: a.reshape(batch + a.shape[1:]), _sharding.unpad(res, pad))
     kw = dict(trace=bool(trace), unroll=unroll, stop=bool(implicit_diff), limbs=own_start)
     bad = None
-    if not is_concrete(*(a for a in (inp.targets, inp.orientations) if a is not None)):  # traced: non-finite sets cannot raise here
-        bad, inp = _finite_sets(inp)
+    if not is_concrete(*(a for a in (inp.targets, inp.orientations) if a is not None)):
+        bad, inp = _finite_sets(inp)  # traced: a non-finite set cannot raise here
     if early_exit is None and not implicit_diff:  # the early loop, and the scan where differentiated
         res = _early_or_scan(settings, model, inp, topo, table, lean, pole_limbs, pole_points, **kw)
     else:
@@ -104,7 +104,7 @@ def _finite_sets(inp: Inputs):
     and the inputs with those replaced by finite stand-ins (so that no NaN enters a solve)."""
     bad = ~jnp.all(jnp.isfinite(inp.targets), axis=(-2, -1))
     if inp.orientations is not None:
-        bad = jnp.broadcast_to(bad, inp.batch) | ~jnp.all(jnp.isfinite(inp.orientations), axis=(-2, -1))
+        bad = bad | ~jnp.all(jnp.isfinite(inp.orientations), axis=(-2, -1))
     bad = jnp.broadcast_to(bad, inp.batch)
     targets = jnp.where(jnp.isfinite(inp.targets), inp.targets, 0.0)
     orients = inp.orientations
